@@ -1,0 +1,37 @@
+# parefg: setup, demo and tests on Debian 12.  `make demo` and `make test` are
+# the two commands of the README; both set up what is missing first.
+
+VENV      := .venv
+PY        := $(VENV)/bin/python
+STAMP     := $(VENV)/.parefg-installed
+DEB_PKGS  := python3-petsc4py python3-mpi4py python3-h5py-mpi python3-gmsh \
+             python3-numpy python3-scipy python3-sympy python3-matplotlib \
+             python3-numba python3-venv python3-pip openmpi-bin
+# Open MPI refuses root without these; CI and containers run as root.
+export OMPI_ALLOW_RUN_AS_ROOT := 1
+export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
+export OMPI_MCA_rmaps_base_oversubscribe := 1
+# Never let pip replace Debian's numpy 1.24 (petsc4py is built against it).
+export PIP_CONSTRAINT := $(CURDIR)/scripts/constraints.txt
+MPIRUN    := mpirun --timeout 1500 -n 2
+
+.PHONY: setup demo test lint clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/setup.sh
+	bash scripts/setup.sh $(DEB_PKGS)
+	@touch $@
+
+demo: setup
+	$(MPIRUN) $(VENV)/bin/parefg
+
+lint: setup
+	$(VENV)/bin/ruff check parefg tests scripts
+
+test: lint
+	$(PY) -m pytest -p no:cacheprovider tests
+	$(MPIRUN) $(PY) -m pytest -p no:cacheprovider -q tests
+
+clean:
+	rm -rf $(VENV) *.egg-info
