@@ -1,0 +1,445 @@
+"""Domains, gmsh meshing and the node cloud (SPEC 5).
+
+Rank 0 builds the domain with the gmsh Python API, meshes it at target spacing
+h and turns the mesh into a :class:`NodeCloud`: the EFG nodes (the mesh
+vertices), the background integration cells (quadrilaterals and/or triangles,
+counter-clockwise) and the boundary segments tagged with the boundary part they
+belong to.  The cloud is then broadcast, so every rank holds the same arrays.
+
+Each domain shape has one builder, registered by name in ``DOMAIN_BUILDERS``.
+A builder creates the gmsh geometry and returns its surfaces and the curves of
+each boundary part; meshing and extraction are shared.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from parefg.errors import InputError
+
+# gmsh element type codes of first-order cells.
+GMSH_TRIANGLE, GMSH_QUAD = 2, 3
+# Boundary segments on no listed part (traction-free, kept for output).
+FREE_PART = "_free"
+BOX_PART_NAMES = ("bottom", "right", "top", "left")
+Z_VERTICES = (
+    (0.0, 0.0), (1.0, 0.0), (1.0, 0.25), (0.4, 0.25), (1.0, 0.75),
+    (1.0, 1.0), (0.0, 1.0), (0.0, 0.75), (0.6, 0.75), (0.0, 0.25),
+)  # fmt: skip
+# Edge i runs from vertex i to i + 1: edge 0 is y = 0, edge 5 is y = 1.
+Z_EDGE_NAMES = ("bottom",) + ("sides",) * 4 + ("top",) + ("sides",) * 4
+
+
+@dataclass
+class NodeCloud:
+    """EFG nodes, background cells and tagged boundary segments of one domain.
+
+    Attributes
+    ----------
+    coords : (n_nodes, 2) float
+        Node positions x_I.
+    spacing : (n_nodes,) float
+        Local node spacing c_I: mean length of the mesh edges incident to node I.
+    quads : (n_quads, 4) int64
+        Quadrilateral cells, counter-clockwise (possibly empty).
+    triangles : (n_triangles, 3) int64
+        Triangular cells, counter-clockwise (possibly empty).
+    segments : (n_segments, 2) int64
+        Boundary segments (a, b) with the domain on their left, so the outward
+        unit normal is (y_b - y_a, -(x_b - x_a)) / |x_b - x_a|.
+    segment_part : (n_segments,) int64
+        Index of each segment's boundary part in ``part_names``.
+    part_names : list of str
+        Boundary part names; ``"_free"`` collects segments of a user .geo that
+        are on no listed part.
+    original_index : (n_nodes,) int64
+        Index of each node in the cloud as gmsh built it.
+    """
+
+    coords: np.ndarray
+    spacing: np.ndarray
+    quads: np.ndarray
+    triangles: np.ndarray
+    segments: np.ndarray
+    segment_part: np.ndarray
+    part_names: list[str]
+    original_index: np.ndarray
+
+    @property
+    def n_nodes(self) -> int:
+        """Number of nodes N."""
+        return len(self.coords)
+
+
+def build_node_cloud(comm, domain: dict, h: float, cells: str = "quad") -> NodeCloud:
+    """Mesh a domain with gmsh on rank 0 and broadcast the node cloud.
+
+    Collective.  Any failure on rank 0 (bad geometry, unreadable .geo, unknown
+    physical name, empty part) is broadcast and raised as :class:`InputError`
+    on every rank, so no rank is left waiting.
+
+    Parameters
+    ----------
+    comm : mpi4py communicator
+    domain : dict
+        The scene's ``[domain]`` table: ``shape`` = "square" | "rectangle" |
+        "z" | "polygon" | "geo" and that shape's parameters.
+    h : float
+        Target node spacing (> 0).
+    cells : {"quad", "tri"}
+        Background cell type; "quad" may leave a few triangles on unstructured
+        meshes.
+    """
+    cloud, failure = None, None
+    if comm.rank == 0:
+        try:
+            cloud = mesh_domain(domain, h, cells)
+        except InputError as exc:
+            failure = ("input", str(exc))
+        except Exception as exc:  # a defect: still end every rank, not only rank 0
+            failure = ("internal", f"{type(exc).__name__}: {exc}")
+            root_exception = exc
+    failure = comm.bcast(failure, root=0)
+    if failure is not None:
+        kind, message = failure
+        if kind == "input":
+            raise InputError(message)
+        if comm.rank == 0:
+            raise root_exception
+        raise RuntimeError(f"node cloud construction failed on rank 0: {message}")
+    return comm.bcast(cloud, root=0)
+
+
+def mesh_domain(domain: dict, h: float, cells: str = "quad") -> NodeCloud:
+    """Build, mesh and extract one domain in this process (not collective)."""
+    shape = domain.get("shape")
+    if shape not in DOMAIN_BUILDERS:
+        raise InputError(
+            f"domain.shape: unknown shape {shape!r}; allowed: {sorted(DOMAIN_BUILDERS)}"
+        )
+    if not (isinstance(h, int | float | np.number) and math.isfinite(h) and h > 0):
+        raise InputError(f"discretization.h: must be a positive number, got {h!r}")
+    if cells not in ("quad", "tri"):
+        raise InputError(f"cells: must be 'quad' or 'tri', got {cells!r}")
+    import gmsh  # imported lazily: only rank 0 meshes
+
+    _gmsh_initialize(gmsh)
+    try:
+        built = DOMAIN_BUILDERS[shape](gmsh, domain, h, cells)
+        _set_mesh_options(gmsh, h, cells, recombine=cells == "quad" and built.lattice is None)
+        gmsh.model.mesh.generate(2)
+        return _extract_cloud(gmsh, built, cells)
+    except InputError:
+        raise
+    except Exception as exc:
+        if type(exc) is not Exception:  # gmsh reports its errors as plain Exception
+            raise
+        raise InputError(f"domain: gmsh failed: {exc}") from None
+    finally:
+        gmsh.finalize()
+
+
+def _gmsh_initialize(gmsh) -> None:
+    """Start gmsh quietly, without its own interrupt handling where supported."""
+    if "interruptible" in inspect.signature(gmsh.initialize).parameters:
+        gmsh.initialize(interruptible=False)
+    else:
+        gmsh.initialize()
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.model.add("parefg")
+
+
+def _set_mesh_options(gmsh, h: float, cells: str, recombine: bool) -> None:
+    """Order-1 mesh at size h; quads by Blossom recombination of Frontal-Delaunay triangles.
+
+    gmsh's "Frontal-Delaunay for quads" (Mesh.Algorithm 8) crashes the
+    process in Debian's gmsh 4.8, so quads come from recombining the plain
+    Frontal-Delaunay triangulation (Mesh.Algorithm 6), which Blossom turns
+    into all or nearly all quads.
+    """
+    gmsh.option.setNumber("Mesh.ElementOrder", 1)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+    gmsh.option.setNumber("Mesh.MeshSizeMin", 0.0)
+    gmsh.option.setNumber("Mesh.MeshSizeFactor", 1.0)
+    gmsh.option.setNumber("Mesh.Algorithm", 6)  # Frontal-Delaunay
+    gmsh.option.setNumber("Mesh.RecombinationAlgorithm", 1)  # Blossom
+    gmsh.option.setNumber("Mesh.RecombineAll", int(recombine))
+
+
+# --------------------------------------------------------------------------- builders
+
+
+@dataclass
+class _GmshDomain:
+    """What a builder made: the domain's surfaces and each part's curves (in part order).
+
+    ``lattice`` = (origin, step), both (2,), for a structured grid whose nodes
+    are snapped to origin + integer * step (gmsh places them with ~1e-12 noise).
+    """
+
+    surfaces: list[int]
+    part_curves: dict[str, list[int]]
+    lattice: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def _build_box(gmsh, domain: dict, h: float, cells: str):
+    """Rectangle as a transfinite grid with n = ceil(L / h) cells per side."""
+    lx, ly = domain.get("size", (1.0, 1.0)) if domain["shape"] == "rectangle" else (1.0, 1.0)
+    x0, y0 = domain.get("origin", (0.0, 0.0)) if domain["shape"] == "rectangle" else (0.0, 0.0)
+    if not (lx > 0 and ly > 0):
+        raise InputError(f"domain.size: both lengths must be > 0, got {[lx, ly]}")
+    corners = [(x0, y0), (x0 + lx, y0), (x0 + lx, y0 + ly), (x0, y0 + ly)]
+    surface, lines = _add_polygon_surface(gmsh, corners, h)
+    # Tolerance guards ceil against L / h landing a rounding error above an integer.
+    n_x, n_y = (max(1, math.ceil(length / h - 1e-9)) for length in (lx, ly))
+    for line, n_cells in zip(lines, (n_x, n_y, n_x, n_y), strict=True):
+        gmsh.model.mesh.setTransfiniteCurve(line, n_cells + 1)
+    gmsh.model.mesh.setTransfiniteSurface(surface)
+    if cells == "quad":
+        gmsh.model.mesh.setRecombine(2, surface)
+    parts = {name: [line] for name, line in zip(BOX_PART_NAMES, lines, strict=True)}
+    lattice = (np.array([x0, y0], dtype=float), np.array([lx / n_x, ly / n_y]))
+    return _GmshDomain([surface], parts, lattice)
+
+
+def _build_z(gmsh, domain: dict, h: float, cells: str):
+    """The Z-shaped polygon of the paper's second example."""
+    polygon = {"shape": "polygon", "vertices": Z_VERTICES, "edge_names": Z_EDGE_NAMES}
+    return _build_polygon(gmsh, polygon, h, cells)
+
+
+def _build_polygon(gmsh, domain: dict, h: float, cells: str):
+    """Counter-clockwise polygon; edges with equal names form one part."""
+    vertices = np.asarray(domain.get("vertices", ()), dtype=float)  # (n_vertices, 2)
+    names = list(domain.get("edge_names", ()))
+    if vertices.ndim != 2 or vertices.shape[1] != 2 or len(vertices) < 3:
+        raise InputError("domain.vertices: need at least 3 points [x, y]")
+    if len(names) != len(vertices):
+        raise InputError(
+            f"domain.edge_names: need one name per edge ({len(vertices)}), got {len(names)}"
+        )
+    following = np.roll(vertices, -1, axis=0)
+    signed_area = 0.5 * np.sum(vertices[:, 0] * following[:, 1] - following[:, 0] * vertices[:, 1])
+    if not signed_area > 0:
+        raise InputError("domain.vertices: must be counter-clockwise with positive area")
+    surface, lines = _add_polygon_surface(gmsh, vertices, h)
+    part_curves: dict[str, list[int]] = {}
+    for name, line in zip(names, lines, strict=True):
+        part_curves.setdefault(str(name), []).append(line)
+    return _GmshDomain([surface], part_curves)
+
+
+def _add_polygon_surface(gmsh, vertices, h: float):
+    """Plane surface bounded by a closed polyline; returns (surface, line tags)."""
+    points = [gmsh.model.geo.addPoint(x, y, 0.0, h) for x, y in vertices]
+    lines = [
+        gmsh.model.geo.addLine(a, b) for a, b in zip(points, points[1:] + points[:1], strict=True)
+    ]
+    loop = gmsh.model.geo.addCurveLoop(lines)
+    surface = gmsh.model.geo.addPlaneSurface([loop])
+    gmsh.model.geo.synchronize()
+    return surface, lines
+
+
+def _build_from_geo(gmsh, domain: dict, h: float, cells: str):
+    """A user .geo file: its listed physical curves are the parts."""
+    path = str(domain.get("file", ""))
+    if not os.path.isfile(path) or not os.access(path, os.R_OK):
+        raise InputError(f"domain.file: cannot read .geo file {path!r}")
+    try:
+        gmsh.open(path)
+    except Exception:
+        _reset_geo_parser(gmsh)
+        raise
+    named_curves: dict[str, list[int]] = {}
+    for dim, tag in gmsh.model.getPhysicalGroups(1):
+        name = gmsh.model.getPhysicalName(dim, tag)
+        entities = gmsh.model.getEntitiesForPhysicalGroup(dim, tag)
+        named_curves.setdefault(name, []).extend(int(e) for e in entities)
+    parts = list(domain.get("parts", ()))
+    unknown = [name for name in parts if name not in named_curves]
+    if unknown:
+        raise InputError(
+            f"domain.parts: {unknown} are not physical curves of {path!r}; "
+            f"it has {sorted(named_curves)}"
+        )
+    surface_groups = gmsh.model.getPhysicalGroups(2)
+    surfaces = [
+        int(e) for _, tag in surface_groups for e in gmsh.model.getEntitiesForPhysicalGroup(2, tag)
+    ]
+    if not surfaces:
+        surfaces = [tag for _, tag in gmsh.model.getEntities(2)]
+    if not surfaces:
+        raise InputError(f"domain.file: {path!r} defines no surface")
+    return _GmshDomain(sorted(set(surfaces)), {name: named_curves[name] for name in parts})
+
+
+def _reset_geo_parser(gmsh) -> None:
+    """Parse an empty .geo after a parse error.
+
+    gmsh 4.8's .geo parser keeps state after an error, so the next file it
+    reads in this process fails with "syntax error (;)"; that next file is
+    this throwaway one instead.
+    """
+    with tempfile.NamedTemporaryFile("w", suffix=".geo") as empty:
+        empty.write("\n")
+        empty.flush()
+        try:
+            gmsh.merge(empty.name)
+        except Exception:  # the expected, state-clearing failure
+            pass
+
+
+DOMAIN_BUILDERS: dict[str, Callable] = {
+    "square": _build_box,
+    "rectangle": _build_box,
+    "z": _build_z,
+    "polygon": _build_polygon,
+    "geo": _build_from_geo,
+}
+
+
+# --------------------------------------------------------------------------- extraction
+
+
+def _extract_cloud(gmsh, built: _GmshDomain, cells: str) -> NodeCloud:
+    """Turn the gmsh mesh of the built surfaces into a NodeCloud with compact numbering."""
+    node_tags, xyz, _ = gmsh.model.mesh.getNodes()
+    row_of_tag = np.full(int(node_tags.max()) + 1, -1, dtype=np.int64)
+    row_of_tag[node_tags.astype(np.int64)] = np.arange(len(node_tags))
+    all_coords = xyz.reshape(-1, 3)[:, :2]  # (n_gmsh_nodes, 2)
+    if built.lattice is not None:
+        origin, step = built.lattice
+        all_coords = origin + np.round((all_coords - origin) / step) * step
+    quads = _cells_of_type(gmsh, built.surfaces, GMSH_QUAD, 4, row_of_tag)
+    triangles = _cells_of_type(gmsh, built.surfaces, GMSH_TRIANGLE, 3, row_of_tag)
+    if cells == "tri" and len(quads):  # a .geo may force recombination: split quads
+        triangles = np.vstack([triangles, quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+        quads = np.empty((0, 4), dtype=np.int64)
+    if len(quads) + len(triangles) == 0:
+        raise InputError("domain: gmsh produced no 2D cells (is the mesh size h too large?)")
+    # Keep only nodes used by the cells, in gmsh order.
+    used = np.unique(np.concatenate([quads.ravel(), triangles.ravel()]))
+    renumber = np.full(len(all_coords), -1, dtype=np.int64)  # -1: node of no cell
+    renumber[used] = np.arange(len(used))
+    coords = np.ascontiguousarray(all_coords[used])  # (n_nodes, 2)
+    quads = orient_counter_clockwise(coords, renumber[quads])
+    triangles = orient_counter_clockwise(coords, renumber[triangles])
+    line_keys, line_parts = _part_line_keys(
+        gmsh, built.part_curves, renumber[row_of_tag], len(coords)
+    )
+    segments, segment_part, part_names = _boundary_segments(
+        quads, triangles, line_keys, line_parts, list(built.part_curves), len(coords)
+    )
+    return NodeCloud(
+        coords=coords,
+        spacing=node_spacing(coords, quads, triangles),
+        quads=quads,
+        triangles=triangles,
+        segments=segments,
+        segment_part=segment_part,
+        part_names=part_names,
+        original_index=np.arange(len(coords), dtype=np.int64),
+    )
+
+
+def _cells_of_type(gmsh, surfaces, element_type: int, n_corners: int, row_of_tag) -> np.ndarray:
+    """(n_cells, n_corners) int64 gmsh node rows of all cells of one type on the surfaces."""
+    blocks = [np.empty((0, n_corners), dtype=np.int64)]
+    for surface in surfaces:
+        _, node_tags = gmsh.model.mesh.getElementsByType(element_type, surface)
+        blocks.append(row_of_tag[np.asarray(node_tags, dtype=np.int64)].reshape(-1, n_corners))
+    return np.vstack(blocks)
+
+
+def _part_line_keys(gmsh, part_curves: dict, node_of_tag, n_nodes: int):
+    """Edge keys min*N + max of the line elements of each part, and their part index."""
+    keys, parts = [np.empty(0, dtype=np.int64)], [np.empty(0, dtype=np.int64)]
+    for part, curves in enumerate(part_curves.values()):
+        for curve in curves:
+            _, node_tags = gmsh.model.mesh.getElementsByType(1, curve)
+            ends = node_of_tag[np.asarray(node_tags, dtype=np.int64)].reshape(-1, 2)
+            ends = ends[np.all(ends >= 0, axis=1)]  # lines off the domain's cells
+            keys.append(ends.min(axis=1) * n_nodes + ends.max(axis=1))
+            parts.append(np.full(len(ends), part, dtype=np.int64))
+    return np.concatenate(keys), np.concatenate(parts)
+
+
+def _boundary_segments(quads, triangles, line_keys, line_parts, part_names, n_nodes):
+    """Cell edges used by one cell only, oriented as in their CCW cell, tagged by part.
+
+    A counter-clockwise cell has its interior on the left of each of its edges,
+    so a boundary edge taken in its cell's order has the domain on its left.
+    """
+    directed = directed_edges(quads, triangles)  # (n_cell_edges, 2)
+    keys = directed.min(axis=1) * n_nodes + directed.max(axis=1)
+    unique_keys, first, counts = np.unique(keys, return_index=True, return_counts=True)
+    segments = directed[first[counts == 1]]  # (n_segments, 2)
+    boundary_keys = unique_keys[counts == 1]
+    segment_part = np.full(len(segments), len(part_names), dtype=np.int64)  # default: free
+    if len(line_keys):
+        order = np.argsort(line_keys, kind="stable")
+        position = np.searchsorted(line_keys[order], boundary_keys).clip(max=len(order) - 1)
+        on_part = line_keys[order][position] == boundary_keys
+        segment_part[on_part] = line_parts[order][position[on_part]]
+    empty = [name for p, name in enumerate(part_names) if not np.any(segment_part == p)]
+    if empty:
+        raise InputError(f"domain: boundary parts {empty} have no segments on the domain boundary")
+    if np.any(segment_part == len(part_names)):
+        part_names = [*part_names, FREE_PART]
+    by_part = np.argsort(segment_part, kind="stable")
+    return segments[by_part], segment_part[by_part], part_names
+
+
+# --------------------------------------------------------------------------- mesh helpers
+
+
+def directed_edges(quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(n_cells_edges, 2) int64 edges (c_i, c_{i+1}) of every cell, in cell order."""
+    blocks = [np.empty((0, 2), dtype=np.int64)]
+    for cells in (quads, triangles):
+        blocks.append(np.stack([cells, np.roll(cells, -1, axis=1)], axis=-1).reshape(-1, 2))
+    return np.vstack(blocks).astype(np.int64)
+
+
+def mesh_edges(quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(n_edges, 2) int64 unique undirected mesh edges (a < b), sorted."""
+    directed = directed_edges(quads, triangles)
+    return np.unique(np.sort(directed, axis=1), axis=0)
+
+
+def signed_areas(coords: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """(n_cells,) shoelace areas 1/2 sum_i (x_i y_{i+1} - x_{i+1} y_i); > 0 when CCW."""
+    corners = coords[cells]  # (n_cells, n_corners, 2)
+    following = np.roll(corners, -1, axis=1)
+    cross = corners[..., 0] * following[..., 1] - following[..., 0] * corners[..., 1]
+    return 0.5 * cross.sum(axis=1)
+
+
+def orient_counter_clockwise(coords: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Cells with clockwise ones reversed; InputError for a degenerate cell."""
+    cells = np.array(cells, dtype=np.int64).reshape(-1, cells.shape[-1])
+    areas = signed_areas(coords, cells)
+    cells[areas < 0] = cells[areas < 0, ::-1]
+    scale = np.ptp(coords, axis=0).max() if len(coords) else 1.0
+    degenerate = np.abs(areas) <= 1e-14 * scale**2
+    if np.any(degenerate):
+        bad = int(np.flatnonzero(degenerate)[0])
+        raise InputError(f"domain: degenerate mesh cell with corners {coords[cells[bad]].tolist()}")
+    return cells
+
+
+def node_spacing(coords: np.ndarray, quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(n_nodes,) c_I = mean length of the mesh edges incident to node I."""
+    edges = mesh_edges(quads, triangles)
+    lengths = np.linalg.norm(coords[edges[:, 1]] - coords[edges[:, 0]], axis=1)
+    total = np.bincount(edges.ravel(), weights=np.repeat(lengths, 2), minlength=len(coords))
+    count = np.bincount(edges.ravel(), minlength=len(coords))
+    return total / count
