@@ -1,0 +1,115 @@
+"""The ``parefg`` command (SPEC 8): run, sweep, scenes, info.
+
+PETSc options (-snes_monitor, -ksp_type, -log_view, ...) may appear anywhere on the
+command line; they are handed to PETSc before petsc4py is imported.  An uncaught
+exception on any rank aborts every rank (no hang under mpirun).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from parefg import __version__
+from parefg.errors import InputError, SolverError
+
+
+def _split_petsc_options(argv: list[str]) -> tuple[list[str], list[str]]:
+    """Separate PETSc options (``-name [value]``) from parefg's own arguments."""
+    ours, petsc = [], []
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg.startswith("-") and not arg.startswith("--") and len(arg) > 2 and arg != "-h":
+            petsc.append(arg)
+            if i + 1 < len(argv) and not argv[i + 1].startswith("-"):
+                petsc.append(argv[i + 1])
+                i += 1
+        else:
+            ours.append(arg)
+        i += 1
+    return ours, petsc
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="parefg", description="PETSc-parallel EFG solver for dynamic contact with friction. "
+        "PETSc options (-snes_monitor, -ksp_type, ...) are accepted anywhere.")
+    parser.add_argument("--version", action="version", version=f"parefg {__version__}")
+    sub = parser.add_subparsers(dest="command")
+    run = sub.add_parser("run", help="run a scene")
+    run.add_argument("scene", help="built-in scene name or path to a TOML file")
+    run.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                     help="override a scene value (repeatable)")
+    run.add_argument("--out", help="output directory (must not exist or be empty)")
+    run.add_argument("--quiet", action="store_true", help="no progress output")
+    run.add_argument("--fail-at-step", type=int, help="testing: fail on purpose at this step")
+    sweep = sub.add_parser("sweep", help="run a grid of cases; error-vs-time table, CSV and PNG")
+    sweep.add_argument("scene")
+    sweep.add_argument("--vary", action="append", required=True, metavar="SECTION.KEY=V1,V2,...")
+    sweep.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    sweep.add_argument("--out", help="output directory for the sweep")
+    sub.add_parser("scenes", help="list the built-in scenes")
+    sub.add_parser("info", help="versions, MPI and PETSc configuration")
+    return parser
+
+
+def _install_abort_hook() -> None:
+    """An uncaught exception on one rank aborts all ranks instead of leaving them waiting."""
+    from mpi4py import MPI
+
+    default_hook = sys.excepthook
+
+    def hook(kind, value, traceback):
+        default_hook(kind, value, traceback)
+        sys.stderr.flush()
+        if MPI.COMM_WORLD.size > 1:
+            MPI.COMM_WORLD.Abort(1)
+
+    sys.excepthook = hook
+
+
+def _finish_collectively(comm, code: int) -> None:
+    """Wait briefly for every rank to reach the same error; abort the job if some do not."""
+    if comm.size == 1:
+        return
+    request = comm.Ibarrier()
+    deadline = time.monotonic() + 10.0
+    while not request.Test():
+        if time.monotonic() > deadline:
+            comm.Abort(code)
+        time.sleep(0.01)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    ours, petsc_options = _split_petsc_options(argv)
+    args = _parser().parse_args(ours)
+    import petsc4py
+
+    petsc4py.init([sys.argv[0], *petsc_options])
+    from mpi4py import MPI
+
+    _install_abort_hook()
+    comm = MPI.COMM_WORLD
+    try:
+        return _dispatch(comm, args)
+    except (InputError, SolverError) as error:
+        if comm.rank == 0:
+            print(f"parefg: error: {error}", file=sys.stderr, flush=True)
+        _finish_collectively(comm, error.exit_code)
+        return error.exit_code
+
+
+def _dispatch(comm, args) -> int:
+    from parefg import commands
+
+    if args.command is None:  # `mpirun -n 2 parefg`: the default scene at modest resolution
+        args = argparse.Namespace(command="run", scene="square", set=[], out=None,
+                                  quiet=False, fail_at_step=None)
+    return getattr(commands, args.command)(comm, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

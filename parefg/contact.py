@@ -1,0 +1,177 @@
+"""Penalty contact and return-mapping Tresca friction at the Gamma_C quadrature points (SPEC 4).
+
+At each of this rank's Gamma_C points q (weight w_q, outward normal nu_q, tangent
+tau_q = (-nu_2, nu_1)) with u_nu = nu . u_h, u_tau = tau . u_h:
+
+    normal pressure   p_q = alpha_C (u_nu - s)^+                      (>= 0)
+    friction force    f_q = clip(alpha_T (u_tau - xi_q), -g_q, g_q)    (xi: accumulated slip)
+    energy            alpha_C/2 ((u_nu - s)^+)^2 + psi(u_tau - xi_q)
+    psi(z)            alpha_T z^2/2 for |z| <= g/alpha_T, else g|z| - g^2/(2 alpha_T)
+
+The residual gets B_nu^T (w p) + B_tau^T (w f); the semismooth Jacobian gets
+alpha_C B_nu^T W B_nu on closed points and alpha_T B_tau^T W B_tau on sticking ones.
+Everything is piecewise linear in u, so the energy along a Newton direction is convex
+piecewise quadratic (see :meth:`ContactLaw.directional`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from parefg.assembly import owned_rows, petsc_matrix
+
+OPEN, STICK, SLIP = 0, 1, 2
+
+
+class ContactLaw:
+    """Contact and friction state of this rank's Gamma_C points.  Construction is collective."""
+
+    def __init__(self, comm, disc, scene):
+        points = disc.contact
+        self.comm = comm
+        self.weights = points.weights  # (n_c,)
+        self.points = points.points  # (n_c, 2)
+        normals = points.normals  # (n_c, 2)
+        self.tangents = np.column_stack([-normals[:, 1], normals[:, 0]])  # (n_c, 2)
+        self.normals = normals
+        self.alpha_c, self.alpha_t = scene.alpha_contact, scene.alpha_friction
+        self.dof_ranges = 2 * disc.partition.node_ranges
+        bcs = [scene.boundaries[name] for name in disc.cloud.part_names if name in scene.boundaries]
+        self._bcs = {disc.cloud.part_names.index(bc.name): bc for bc in bcs if bc.kind == "contact"}
+        self.part = points.part
+        self.has_friction = not all(bc.friction_is_zero for bc in self._bcs.values())
+        self.gap = self._per_part(lambda bc, x, y, n: bc.gap(x, y))
+        self.bound = np.zeros(len(self.weights))  # g_n at the points, set by set_time
+        self.slip = np.zeros(len(self.weights))  # xi, accumulated slip
+        # rotated value operator: rows 2q = nu_q . u_h(x_q), 2q + 1 = tau_q . u_h(x_q)
+        values = _scipy_from_petsc(points.values)
+        rotation = sp.block_diag([np.array([n, t]) for n, t in zip(normals, self.tangents)],
+                                 format="csr") if len(normals) else sp.csr_matrix((0, 0))
+        local = (rotation @ values).tocsr() if len(normals) else values
+        self.normal_op = local[0::2]  # (n_c, n_dofs) scipy, for the Jacobian
+        self.tangent_op = local[1::2]
+        self.operator = petsc_matrix(comm, local, points.values.getLocalSize()[1],
+                                     points.values.getSize()[1])
+
+    def _per_part(self, evaluate) -> np.ndarray:
+        """Evaluate a per-boundary-condition function at the points of each contact part."""
+        out = np.zeros(len(self.weights))
+        for part_id, bc in self._bcs.items():
+            on = self.part == part_id
+            x, y = self.points[on, 0], self.points[on, 1]
+            out[on] = evaluate(bc, x, y, self.normals[on])
+        return out
+
+    def set_time(self, t: float) -> None:
+        """Friction bound g(x, t) at the points."""
+        if self.has_friction:
+            self.bound = self._per_part(lambda bc, x, y, n: bc.friction(x, y, t, n[:, 0], n[:, 1]))
+            if np.any(self.bound < 0):
+                raise ValueError("friction bound g is negative at some Gamma_C point")
+
+    def kinematics(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
+        """(u_nu, u_tau) at the points.  Collective."""
+        out = self.operator.createVecLeft()
+        self.operator.mult(u, out)
+        values = out.getArray().reshape(-1, 2)
+        return values[:, 0].copy(), values[:, 1].copy()
+
+    def forces(self, un, ut) -> tuple[np.ndarray, np.ndarray]:
+        """Normal pressure p >= 0 and friction force f at the points."""
+        pressure = self.alpha_c * np.maximum(un - self.gap, 0.0)
+        if not self.has_friction:
+            return pressure, np.zeros_like(ut)
+        return pressure, np.clip(self.alpha_t * (ut - self.slip), -self.bound, self.bound)
+
+    def status(self, un, ut) -> np.ndarray:
+        """OPEN / STICK / SLIP per point (int8); closed points stick unless |f| reached g."""
+        closed = un > self.gap
+        sliding = self._sliding(ut)
+        return np.where(~closed, OPEN, np.where(sliding, SLIP, STICK)).astype(np.int8)
+
+    def _sliding(self, ut) -> np.ndarray:
+        if not self.has_friction:
+            return np.ones(len(ut), dtype=bool)
+        return np.abs(self.alpha_t * (ut - self.slip)) >= self.bound
+
+    def active_set(self, un, ut) -> np.ndarray:
+        """Packed (closed, stick) flags: the data the semismooth Jacobian depends on."""
+        return np.concatenate([un > self.gap, ~self._sliding(ut)])
+
+    def add_residual(self, residual: PETSc.Vec, un, ut) -> None:
+        """residual += B_nu^T (w p) + B_tau^T (w f).  Collective."""
+        pressure, friction = self.forces(un, ut)
+        point_forces = self.operator.createVecLeft()
+        point_forces.setArray(np.column_stack([pressure, friction]).ravel() * np.repeat(self.weights, 2))
+        self.operator.multTransposeAdd(point_forces, residual, residual)
+
+    def jacobian_rows(self, un, ut) -> sp.csr_matrix:
+        """Owned rows of alpha_C B_nu^T W_closed B_nu + alpha_T B_tau^T W_stick B_tau.  Collective."""
+        closed = (un > self.gap) * self.weights * self.alpha_c
+        local = self.normal_op.T @ sp.diags(closed) @ self.normal_op
+        if self.has_friction:
+            stick = (~self._sliding(ut)) * self.weights * self.alpha_t
+            local = local + self.tangent_op.T @ sp.diags(stick) @ self.tangent_op
+        return owned_rows(self.comm, local.tocsr(), self.dof_ranges)
+
+    def energy(self, un, ut) -> float:
+        """Penalty-contact plus friction potential, summed over all ranks.  Collective."""
+        normal = 0.5 * self.alpha_c * np.maximum(un - self.gap, 0.0) ** 2
+        local = np.dot(self.weights, normal)
+        if self.has_friction:
+            local += np.dot(self.weights, self._friction_potential(ut - self.slip))
+        return self.comm.allreduce(local, op=MPI.SUM)
+
+    def _friction_potential(self, z) -> np.ndarray:
+        g, a = self.bound, self.alpha_t
+        elastic = np.abs(a * z) <= g
+        return np.where(elastic, 0.5 * a * z**2, g * np.abs(z) - 0.5 * g**2 / a)
+
+    def normal_energy(self, un) -> float:
+        """alpha_C/2 ||(u_nu - s)^+||^2 on Gamma_C.  Collective."""
+        local = np.dot(self.weights, 0.5 * self.alpha_c * np.maximum(un - self.gap, 0.0) ** 2)
+        return self.comm.allreduce(local, op=MPI.SUM)
+
+    def stored_friction_energy(self, ut) -> float:
+        """alpha_T/2 |u_tau - xi|^2 after the slip update: the friction spring's energy.  Collective."""
+        if not self.has_friction:
+            return 0.0
+        z = ut - self.slip
+        return self.comm.allreduce(np.dot(self.weights, 0.5 * self.alpha_t * z**2), op=MPI.SUM)
+
+    def directional(self, un, ut, dn, dt, step) -> tuple[float, float]:
+        """Derivative and slope of the contact energy along u + step d.  Collective.
+
+        Returns (sum_q w_q [dn_q p_q + dt_q f_q], sum_q w_q [alpha_C dn_q^2 closed_q +
+        alpha_T dt_q^2 stick_q]) evaluated at u + step d: the value and the slope of the
+        current linear piece of the (monotone, piecewise linear) directional derivative.
+        """
+        un_s, ut_s = un + step * dn, ut + step * dt
+        pressure, friction = self.forces(un_s, ut_s)
+        value = np.dot(self.weights, dn * pressure + dt * friction)
+        slope = np.dot(self.weights, self.alpha_c * dn**2 * (un_s > self.gap))
+        if self.has_friction:
+            slope += np.dot(self.weights, self.alpha_t * dt**2 * ~self._sliding(ut_s))
+        return tuple(self.comm.allreduce(np.array([value, slope]), op=MPI.SUM))
+
+    def update_slip(self, ut) -> float:
+        """Return mapping xi_n = u_tau - clip(u_tau - xi, -g/alpha_T, g/alpha_T).
+
+        Returns this step's frictional dissipation sum_q w_q g_q |xi_n - xi_{n-1}|.  Collective.
+        """
+        if not self.has_friction:
+            return 0.0
+        z = ut - self.slip
+        elastic = np.clip(z, -self.bound / self.alpha_t, self.bound / self.alpha_t)
+        increment = z - elastic
+        self.slip = self.slip + increment
+        return self.comm.allreduce(np.dot(self.weights, self.bound * np.abs(increment)), op=MPI.SUM)
+
+
+def _scipy_from_petsc(matrix: PETSc.Mat) -> sp.csr_matrix:
+    """This rank's rows of a PETSc AIJ matrix as scipy CSR with global columns."""
+    indptr, indices, data = matrix.getValuesCSR()
+    return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, matrix.getSize()[1]))

@@ -1,0 +1,263 @@
+"""The discrete EFG operators of one run, assembled once (SPEC 2, 3, 5).
+
+scene -> node cloud -> partition -> MLS at this rank's quadrature points -> PETSc
+operators.  Everything here is constant over the run (small deformation): mass M,
+stiffness K, the Dirichlet penalty matrix G_D, and the point operators that evaluate
+u_h (and its gradient) at quadrature points, Gamma_C points and nodes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from parefg.assembly import gram_matrix, interleave, owned_rows, petsc_matrix, shape_matrix
+from parefg.geometry import NodeCloud, build_node_cloud
+from parefg.mls import MLS, ShapeValues
+from parefg.partition import Partition, partition_cloud
+from parefg.quadrature import Quadrature, cell_quadrature, segment_quadrature
+
+
+@dataclass
+class PointSet:
+    """This rank's points of one kind, with the operator evaluating u_h there.
+
+    ``values`` is a (2 n_points x n_dofs) PETSc matrix, interleaved like the DOFs, so
+    ``values @ d`` gives (u_x, u_y) at each point and ``values^T`` integrates point forces.
+    """
+
+    points: np.ndarray  # (n_points, 2)
+    weights: np.ndarray  # (n_points,) quadrature weights (ones for nodes)
+    normals: np.ndarray | None  # (n_points, 2) outward unit normals on boundaries
+    values: PETSc.Mat
+    gradients: PETSc.Mat | None = None  # (4 n_points x n_dofs): du_x/dx, du_x/dy, du_y/dx, du_y/dy
+    part: np.ndarray | None = None  # (n_points,) boundary part index of each point
+    rows: np.ndarray | None = None  # (n_points,) global, rank-independent row of each point
+
+    def evaluate(self, u: PETSc.Vec) -> np.ndarray:
+        """u_h at the points, (n_points, 2).  Collective."""
+        out = self.values.createVecLeft()
+        self.values.mult(u, out)
+        return out.getArray().reshape(-1, 2).copy()
+
+    def evaluate_gradient(self, u: PETSc.Vec) -> np.ndarray:
+        """grad u_h at the points, (n_points, 2, 2) with [q, i, j] = d u_i / d x_j.  Collective."""
+        out = self.gradients.createVecLeft()
+        self.gradients.mult(u, out)
+        return out.getArray().reshape(-1, 2, 2).copy()
+
+    def integrate(self, density: np.ndarray, out: PETSc.Vec) -> None:
+        """out = int density . phi_I, i.e. values^T (w * density); density (n_points, 2).  Collective."""
+        point_vec = self.values.createVecLeft()
+        point_vec.setArray((density * self.weights[:, None]).ravel())
+        self.values.multTranspose(point_vec, out)
+
+
+@dataclass
+class Discretization:
+    """Node cloud, partition and the constant operators of a run (built collectively)."""
+
+    comm: object
+    cloud: NodeCloud
+    partition: Partition
+    node_range: tuple[int, int]  # this rank's nodes [start, stop)
+    n_nodes: int
+    mass: PETSc.Mat  # M = int rho phi_I phi_J
+    stiffness: PETSc.Mat  # K = a(phi_J, phi_I)
+    dirichlet: PETSc.Mat  # G_D = int_{Gamma_D} phi_I phi_J (without alpha)
+    owned: dict[str, sp.csr_matrix]  # this rank's rows of "mass", "stiffness", "dirichlet"
+    contact_pattern: sp.csr_matrix  # owned rows of the Gamma_C coupling pattern (zeros)
+    domain: PointSet
+    nodes: PointSet
+    boundary: dict[str, PointSet] = field(default_factory=dict)  # by boundary-condition name
+    contact: PointSet | None = None  # all Gamma_C points (every contact part)
+    timings: dict[str, float] = field(default_factory=dict)
+    condition_range: tuple[float, float] = (1.0, 1.0)  # min, max MLS moment condition number
+
+    @property
+    def n_dofs(self) -> int:
+        return 2 * self.n_nodes
+
+    def create_vec(self) -> PETSc.Vec:
+        """A zero DOF vector with this rank's block.  Collective."""
+        return self.mass.createVecRight()
+
+
+def _gradient_matrix(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
+    """(4 n_points x 2 n_nodes) operator: row 4q + 2c + d = d phi_I / d x_d on DOF 2I + c."""
+    n_points, n_max = shape.neighbours.shape
+    q, k = np.nonzero(shape.mask)
+    node = shape.neighbours[q, k]
+    rows, cols, data = [], [], []
+    for c in range(2):
+        for d in range(2):
+            rows.append(4 * q + 2 * c + d)
+            cols.append(2 * node + c)
+            data.append(shape.dphi[q, k, d])
+    return sp.csr_matrix(
+        (np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(4 * n_points, 2 * n_nodes),
+    )
+
+
+def _stiffness(gradients: list[sp.csr_matrix], weights: np.ndarray, lam: float, mu: float):
+    """K[2I+a, 2J+b] = int lam d_a phi_I d_b phi_J + mu (delta_ab grad phi_I . grad phi_J + d_b phi_I d_a phi_J)."""
+    s = [[gram_matrix(gradients[a], weights, gradients[b]) for b in range(2)] for a in range(2)]
+    laplace = s[0][0] + s[1][1]
+    blocks = [[lam * s[a][b] + mu * s[b][a] + (mu * laplace if a == b else 0) for b in range(2)]
+              for a in range(2)]
+    unit = [[sp.csr_matrix(([1.0], ([a], [b])), shape=(2, 2)) for b in range(2)] for a in range(2)]
+    return sum(sp.kron(blocks[a][b], unit[a][b], format="csr") for a in range(2) for b in range(2))
+
+
+class _Builder:
+    """Collective construction of a Discretization from a scene."""
+
+    def __init__(self, comm, scene):
+        self.comm, self.scene = comm, scene
+        self.timings = {"mesh": 0.0, "mls": 0.0, "assembly": 0.0}
+
+    def build(self) -> Discretization:
+        comm, scene = self.comm, self.scene
+        tic = time.perf_counter()
+        cloud = build_node_cloud(comm, scene.domain, scene.h, scene.cells)
+        cloud, partition = partition_cloud(cloud, comm.size)
+        self.cloud, self.partition = cloud, partition
+        self.n_nodes = len(cloud.coords)
+        self.node_ranges = partition.node_ranges
+        self.dof_ranges = 2 * partition.node_ranges
+        start, stop = partition.node_ranges[comm.rank], partition.node_ranges[comm.rank + 1]
+        self.n_dofs_local = 2 * (stop - start)
+        self.timings["mesh"] = time.perf_counter() - tic
+        self.mls = MLS(cloud.coords, scene.support * cloud.spacing, scene.degree, scene.weight,
+                       support_factor=scene.support)
+        self.conditions = []
+
+        domain_q, domain_shape = self._domain_points()
+        tic = time.perf_counter()
+        n = self.n_nodes
+        phi = shape_matrix(domain_shape, n)
+        grads = [shape_matrix(domain_shape, n, d) for d in range(2)]
+        mass_local = interleave(gram_matrix(phi, scene.rho * domain_q.weights, phi))
+        stiffness_local = _stiffness(grads, domain_q.weights, scene.lam, scene.mu)
+        domain = self._point_set(domain_q, domain_shape, gradients=True)
+        self.timings["assembly"] += time.perf_counter() - tic
+
+        boundary, contact, dirichlet_local, pattern_local = self._boundaries()
+        nodes = self._node_points()
+        tic = time.perf_counter()
+        owned = {
+            name: owned_rows(comm, local, self.dof_ranges)
+            for name, local in [("mass", mass_local), ("stiffness", stiffness_local),
+                                ("dirichlet", dirichlet_local)]
+        }
+        mass, stiffness, dirichlet = (self._square(owned[name])
+                                      for name in ("mass", "stiffness", "dirichlet"))
+        contact_pattern = owned_rows(comm, pattern_local, self.dof_ranges)
+        self.timings["assembly"] += time.perf_counter() - tic
+        conditions = np.concatenate(self.conditions) if self.conditions else np.ones(1)
+        return Discretization(
+            comm=comm, cloud=cloud, partition=partition, node_range=(start, stop),
+            n_nodes=n, mass=mass, stiffness=stiffness, dirichlet=dirichlet, owned=owned,
+            contact_pattern=contact_pattern, domain=domain, nodes=nodes,
+            boundary=boundary, contact=contact, timings=self.timings,
+            condition_range=(comm.allreduce(conditions.min(), op=MPI.MIN),
+                             comm.allreduce(conditions.max(), op=MPI.MAX)),
+        )
+
+    def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
+        tic = time.perf_counter()
+        shape = self.mls.evaluate(points, gradients=gradients)
+        self.conditions.append(shape.condition)
+        self.timings["mls"] += time.perf_counter() - tic
+        return shape
+
+    def _domain_points(self) -> tuple[Quadrature, ShapeValues]:
+        rank, cloud, part = self.comm.rank, self.cloud, self.partition
+        quadrature = cell_quadrature(
+            cloud.coords, cloud.quads, cloud.triangles, self.scene.quadrature,
+            quad_ids=np.flatnonzero(part.quad_owner == rank),
+            triangle_ids=np.flatnonzero(part.triangle_owner == rank),
+        )
+        return quadrature, self._shape(quadrature.points, gradients=True)
+
+    def _square(self, owned: sp.csr_matrix) -> PETSc.Mat:
+        return petsc_matrix(self.comm, owned, self.n_dofs_local, 2 * self.n_nodes, block_size=2)
+
+    def _point_set(self, quadrature: Quadrature, shape: ShapeValues, gradients=False, **extra):
+        n = self.n_nodes
+        values = interleave(shape_matrix(shape, n))
+        values_mat = petsc_matrix(self.comm, values, self.n_dofs_local, 2 * n)
+        grad_mat = None
+        if gradients:
+            grad_mat = petsc_matrix(self.comm, _gradient_matrix(shape, n), self.n_dofs_local, 2 * n)
+        return PointSet(points=quadrature.points, weights=quadrature.weights,
+                        normals=quadrature.normals, values=values_mat, gradients=grad_mat, **extra)
+
+    def _boundary_quadrature(self, part_ids: list[int]) -> tuple[Quadrature, np.ndarray]:
+        """This rank's Gauss points on segments of the given parts, and their global rows."""
+        cloud, part = self.cloud, self.partition
+        on_parts = np.isin(cloud.segment_part, part_ids)
+        # global, rank-independent numbering of the selected segments (for output rows)
+        global_index = np.cumsum(on_parts) - 1
+        mine = np.flatnonzero(on_parts & (part.segment_owner == self.comm.rank))
+        quadrature = segment_quadrature(cloud.coords, cloud.segments, self.scene.quadrature,
+                                        segment_ids=mine)
+        n_gauss = self.scene.quadrature
+        rows = global_index[quadrature.cell] * n_gauss + np.arange(len(quadrature.cell)) % n_gauss
+        return quadrature, rows
+
+    def _boundaries(self):
+        """Point sets of every boundary condition; G_D and the Gamma_C coupling pattern."""
+        scene, cloud, n = self.scene, self.cloud, self.n_nodes
+        boundary, contact_parts = {}, []
+        dirichlet_local = sp.csr_matrix((2 * n, 2 * n))
+        for name, bc in scene.boundaries.items():
+            part_id = cloud.part_names.index(name)
+            if bc.kind == "contact":
+                contact_parts.append(part_id)
+                continue
+            quadrature, _ = self._boundary_quadrature([part_id])
+            shape = self._shape(quadrature.points, gradients=False)
+            tic = time.perf_counter()
+            boundary[name] = self._point_set(quadrature, shape)
+            if bc.kind == "dirichlet":
+                phi = shape_matrix(shape, n)
+                dirichlet_local = dirichlet_local + interleave(gram_matrix(phi, quadrature.weights, phi))
+            self.timings["assembly"] += time.perf_counter() - tic
+        contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
+        if contact_parts:
+            quadrature, rows = self._boundary_quadrature(contact_parts)
+            shape = self._shape(quadrature.points, gradients=False)
+            tic = time.perf_counter()
+            part_of_point = cloud.segment_part[quadrature.cell]
+            contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows)
+            phi = shape_matrix(shape, n)
+            coupling = (phi.T @ phi).tocsr()
+            coupling.data[:] = 0.0
+            pattern = sp.kron(coupling, np.ones((2, 2)), format="csr")
+            self.timings["assembly"] += time.perf_counter() - tic
+        return boundary, contact, dirichlet_local, pattern
+
+    def _node_points(self) -> PointSet:
+        """u_h and its gradient at this rank's own nodes (MLS does not interpolate)."""
+        start, stop = self.node_ranges[self.comm.rank], self.node_ranges[self.comm.rank + 1]
+        points = self.cloud.coords[start:stop]
+        shape = self._shape(points, gradients=True)
+        tic = time.perf_counter()
+        quadrature = Quadrature(points=points, weights=np.ones(len(points)),
+                                cell=np.arange(start, stop), normals=None)
+        nodes = self._point_set(quadrature, shape, gradients=True,
+                                rows=self.cloud.original_index[start:stop])
+        self.timings["assembly"] += time.perf_counter() - tic
+        return nodes
+
+
+def build_discretization(comm, scene) -> Discretization:
+    """Mesh, partition, MLS and assemble every constant operator of ``scene``.  Collective."""
+    return _Builder(comm, scene).build()

@@ -1,0 +1,242 @@
+"""One run of a scene: operators -> initial state -> time loop -> errors (SPEC 4).
+
+The loop skips what a scene does not need: without Gamma_C every step is one linear
+solve with A_const factored once (:class:`LinearStepSolver`); with Gamma_C each step is
+a semismooth Newton solve that reuses the factorization while the active set holds; with
+g = 0 no tangential terms enter; errors are computed only with an exact solution.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from petsc4py import PETSc
+
+from parefg.assembly import petsc_matrix, with_pattern
+from parefg.contact import ContactLaw
+from parefg.errors import SolverError
+from parefg.solver import ContactStepSolver, LinearStepSolver
+from parefg.timestepping import State, make_scheme, relative_errors
+
+
+class Simulation:
+    """The time loop of one scene on ``comm``.  Construction and every method are collective."""
+
+    def __init__(self, comm, scene, disc):
+        self.comm, self.scene, self.disc = comm, scene, disc
+        self.scheme = make_scheme(scene)
+        self.law = ContactLaw(comm, disc, scene) if disc.contact is not None else None
+        self.dirichlet_names = [n for n, bc in scene.boundaries.items() if bc.kind == "dirichlet"]
+        self.neumann_names = [n for n, bc in scene.boundaries.items() if bc.kind == "neumann"]
+        tic = time.perf_counter()
+        self.a_const = self._a_const()
+        if self.law is None:
+            self.solver = LinearStepSolver(comm, self.a_const)
+        else:
+            self.solver = ContactStepSolver(comm, self.a_const, disc.contact_pattern, self.law)
+        self.timings = {"assembly": time.perf_counter() - tic, "solve": 0.0, "output": 0.0}
+        self.history: list[dict[str, float]] = []
+        self.newton_iterations = 0
+        self.linear_iterations = 0
+
+    def _a_const(self) -> PETSc.Mat:
+        """A_const = c_M M + K + alpha_D G_D, with the Gamma_C pattern reserved."""
+        owned = self.disc.owned
+        matrix = (self.scheme.mass_coefficient * owned["mass"] + owned["stiffness"]
+                  + self.scene.alpha_dirichlet * owned["dirichlet"])
+        matrix = with_pattern(matrix.tocsr(), self.disc.contact_pattern)
+        n_local = matrix.shape[0]
+        a_const = petsc_matrix(self.comm, matrix, n_local, self.disc.n_dofs, block_size=2)
+        a_const.setOption(PETSc.Mat.Option.SPD, True)
+        return a_const
+
+    # -- loads ---------------------------------------------------------------------
+    def loads(self, t: float, dirichlet: bool = True) -> PETSc.Vec:
+        """F(t) (body force and tractions) plus, if asked, the Dirichlet data alpha_D g_D(t)."""
+        disc, scene = self.disc, self.scene
+        total = disc.create_vec()
+        part = disc.create_vec()
+        x, y = disc.domain.points.T
+        disc.domain.integrate(scene.body_force(x, y, t).T, part)
+        total.axpy(1.0, part)
+        for name in self.neumann_names:
+            points = disc.boundary[name]
+            x, y = points.points.T
+            nx, ny = points.normals.T
+            points.integrate(scene.boundaries[name].traction(x, y, t, nx, ny).T, part)
+            total.axpy(1.0, part)
+        for name in self.dirichlet_names if dirichlet else ():
+            points = disc.boundary[name]
+            x, y = points.points.T
+            points.integrate(scene.boundaries[name].value(x, y, t).T, part)
+            total.axpy(scene.alpha_dirichlet, part)
+        return total
+
+    # -- initial state ---------------------------------------------------------------
+    def _project(self, field) -> PETSc.Vec:
+        """L2 projection M d = int rho f . phi of an initial field (zero stays zero)."""
+        disc = self.disc
+        x, y = disc.domain.points.T
+        values = field(x, y).T * self.scene.rho
+        result = disc.create_vec()
+        if self.comm.allreduce(bool(np.any(values != 0.0))):
+            rhs = disc.create_vec()
+            disc.domain.integrate(values, rhs)
+            self._mass_solve(rhs, result)
+        return result
+
+    def _mass_solve(self, rhs: PETSc.Vec, out: PETSc.Vec) -> None:
+        if not hasattr(self, "_mass_ksp"):
+            ksp = PETSc.KSP().create(self.comm)
+            ksp.setOptionsPrefix("mass_")
+            ksp.setOperators(self.disc.mass)
+            ksp.setType(PETSc.KSP.Type.CG)
+            ksp.getPC().setType(PETSc.PC.Type.JACOBI)
+            ksp.setTolerances(rtol=1e-13, atol=1e-50, max_it=5000)
+            ksp.setFromOptions()
+            self._mass_ksp = ksp
+        self._mass_ksp.solve(rhs, out)
+        if self._mass_ksp.getConvergedReason() < 0:
+            raise SolverError(f"mass-matrix solve failed: KSP reason {self._mass_ksp.getConvergedReason()}")
+
+    def initial_state(self) -> State:
+        """u_0, v_0 projected; a_0 from M a_0 = F_0 - (K + alpha_D G_D) u_0 - contact(u_0)."""
+        u = self._project(self.scene.initial_u)
+        v = self._project(lambda x, y: self.scene.initial_v(x, y))
+        a = self.disc.create_vec()
+        if self.scheme.dynamic:
+            rhs = self.loads(0.0)
+            ku = self.disc.create_vec()
+            self.disc.stiffness.mult(u, ku)
+            rhs.axpy(-1.0, ku)
+            self.disc.dirichlet.mult(u, ku)
+            rhs.axpy(-self.scene.alpha_dirichlet, ku)
+            if self.law is not None:
+                self.law.set_time(0.0)
+                un, ut = self.law.kinematics(u)
+                self.law.slip = ut.copy()  # xi_0 = u_tau(0)
+                forces = self.disc.create_vec()
+                self.law.add_residual(forces, un, ut)
+                rhs.axpy(-1.0, forces)
+            self._mass_solve(rhs, a)
+        elif self.law is not None:
+            self.law.slip = self.law.kinematics(u)[1]
+        return State(u=u, v=v, a=a)
+
+    def start(self) -> State:
+        """Initial state, and the t = 0 row of the per-step table."""
+        state = self.initial_state()
+        self._last_forces = self.loads(0.0, dirichlet=False)
+        self._dirichlet_previous = {}
+        dirichlet_energy, _ = self._dirichlet_terms(state.u, 0.0)
+        contact_energy = 0.0
+        if self.law is not None:
+            contact_energy = self.law.normal_energy(self.law.kinematics(state.u)[0])
+        self.history = [{
+            "time": 0.0, "newton_iterations": 0, "linear_iterations": 0,
+            "active_contact_points": 0,
+            "kinetic_energy": 0.5 * _quadratic(self.disc.mass, state.v),
+            "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, state.u),
+            "penalty_energy": dirichlet_energy + contact_energy,
+            "dissipated_energy": 0.0, "external_work": 0.0,
+        }]
+        return state
+
+    # -- the loop ------------------------------------------------------------------------
+    def step(self, state: State, n: int) -> State:
+        """Advance from t_{n-1} to t_n = n k."""
+        t = n * self.scheme.k
+        ut, vt = self.scheme.predict(state)
+        b = self.loads(t)
+        if self.scheme.mass_coefficient:
+            mu = self.disc.create_vec()
+            self.disc.mass.mult(ut, mu)
+            b.axpy(self.scheme.mass_coefficient, mu)
+        u = ut.copy()  # initial guess: the predictor
+        if self.law is not None:
+            self.law.set_time(t)
+        tic = time.perf_counter()
+        newton, linear = self.solver.solve(b, u, t)
+        self.timings["solve"] += time.perf_counter() - tic
+        self.newton_iterations += newton
+        self.linear_iterations += linear
+        new = self.scheme.update(state, u, ut, vt)
+        self._check_finite(new.u, t)
+        self._record(state, new, t, b, newton, linear)
+        return new
+
+    def _check_finite(self, u: PETSc.Vec, t: float) -> None:
+        bad = not np.all(np.isfinite(u.getArray(readonly=True)))
+        if self.comm.allreduce(bad):
+            raise SolverError(f"non-finite displacement at t = {t:.6g}: the step diverged")
+
+    def _record(self, old: State, new: State, t, b, newton, linear) -> None:
+        """Per-step table row: iterations, active points and energies.
+
+        Balance: kinetic + elastic + penalty-stored + dissipated - external work is
+        constant, with the work of the loads F and of the moving Dirichlet data.
+        """
+        previous = self.history[-1] if self.history else {}
+        dissipated = previous.get("dissipated_energy", 0.0)
+        active, contact_energy = 0, 0.0
+        if self.law is not None:
+            un, ut = self.law.kinematics(new.u)
+            dissipated += self.law.update_slip(ut)
+            active = self.comm.allreduce(int(np.count_nonzero(un > self.law.gap)))
+            contact_energy = self.law.normal_energy(un) + self.law.stored_friction_energy(ut)
+        dirichlet_energy, anchor_work = self._dirichlet_terms(new.u, t)
+        forces = self.loads(t, dirichlet=False)
+        work = previous.get("external_work", 0.0) + anchor_work
+        work += self._load_work(old.u, new.u, forces)
+        self.history.append({
+            "time": t, "newton_iterations": newton, "linear_iterations": linear,
+            "active_contact_points": active,
+            "kinetic_energy": 0.5 * _quadratic(self.disc.mass, new.v),
+            "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, new.u),
+            "penalty_energy": dirichlet_energy + contact_energy,
+            "dissipated_energy": dissipated, "external_work": work,
+        })
+
+    def _load_work(self, u_old, u_new, forces) -> float:
+        """Trapezoidal work of F over the step: (F_{n-1} + F_n)/2 . (u_n - u_{n-1})."""
+        du = u_new.copy()
+        du.axpy(-1.0, u_old)
+        mean = forces.copy()
+        mean.axpy(1.0, self._last_forces)
+        self._last_forces = forces
+        return 0.5 * mean.dot(du)
+
+    def _dirichlet_terms(self, u: PETSc.Vec, t: float) -> tuple[float, float]:
+        """alpha_D/2 ||u_h - ubar||^2 on Gamma_D, and the work of the moving data ubar.
+
+        The anchor work over the step is -alpha_D int mean(u_h - ubar) . (ubar_n - ubar_{n-1}).
+        """
+        energy, work = 0.0, 0.0
+        previous = getattr(self, "_dirichlet_previous", {})
+        current = {}
+        for name in self.dirichlet_names:
+            points = self.disc.boundary[name]
+            x, y = points.points.T
+            ubar = self.scene.boundaries[name].value(x, y, t).T
+            diff = points.evaluate(u) - ubar
+            energy += np.dot(points.weights, np.sum(diff**2, axis=1))
+            old_ubar, old_diff = previous.get(name, (self.scene.boundaries[name].value(
+                x, y, t - self.scheme.k).T, diff))
+            mean_force = 0.5 * (diff + old_diff)
+            work -= np.dot(points.weights, np.sum(mean_force * (ubar - old_ubar), axis=1))
+            current[name] = (ubar, diff)
+        self._dirichlet_previous = current
+        alpha = self.scene.alpha_dirichlet
+        return 0.5 * alpha * self.comm.allreduce(energy), alpha * self.comm.allreduce(work)
+
+    def errors(self, u: PETSc.Vec, t: float) -> dict[str, float] | None:
+        if self.scene.exact is None:
+            return None
+        return relative_errors(self.comm, self.disc, self.scene.exact, u, t)
+
+
+def _quadratic(matrix: PETSc.Mat, x: PETSc.Vec) -> float:
+    y = matrix.createVecLeft()
+    matrix.mult(x, y)
+    return y.dot(x)

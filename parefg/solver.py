@@ -1,0 +1,224 @@
+"""Solving one time step: minimize J_n(u) = 1/2 u^T A u - b^T u + contact energy (SPEC 4).
+
+Two solvers, chosen by what the scene needs:
+
+* :class:`LinearStepSolver` -- no Gamma_C: J_n is quadratic, each step is one linear
+  solve with A_const, factored (or preconditioned) once for the whole run.
+* :class:`ContactStepSolver` -- semismooth Newton with PETSc SNES (``newtonls``).  The
+  Jacobian A_const + contact terms depends only on the active set (closed / sticking
+  points), so it is rebuilt -- and refactored -- only when the active set changes; while
+  it is unchanged PETSc keeps the factorization (the matrix state does not move).
+
+The VI-aware line search is a line-search *pre-check* on a ``basic`` (full-step) line
+search: given the Newton update Y (PETSc steps x <- x - Y), the pre-check replaces Y by
+t* Y with t* the exact minimizer of the convex, piecewise-quadratic J_n(x - t Y).  Its
+derivative is monotone and piecewise linear in t; t* is found by Newton's method on the
+current linear piece inside a shrinking bracket (exact after finitely many pieces).  So
+J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, even
+another -snes_linesearch_type) still applies.
+
+Convergence: the residual meets the SNES tolerances, or the full Newton step was taken
+and the active set did not change -- then F is linear on that piece and the step solved
+it exactly -- in both cases only once the active set settled.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from petsc4py import PETSc
+
+from parefg.assembly import add_owned_rows
+from parefg.errors import SolverError
+
+Reason = PETSc.SNES.ConvergedReason
+
+
+def configure_linear_solver(ksp: PETSc.KSP) -> None:
+    """Default: direct Cholesky with MUMPS; any -ksp_/-pc_ option overrides it."""
+    ksp.setType(PETSc.KSP.Type.PREONLY)
+    pc = ksp.getPC()
+    pc.setType(PETSc.PC.Type.CHOLESKY)
+    pc.setFactorSolverType("mumps")
+
+
+class LinearStepSolver:
+    """u = A^-1 b with one factorization reused by every step.  Collective."""
+
+    def __init__(self, comm, a_const: PETSc.Mat, near_null_space=None):
+        self.a_const = a_const
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setOperators(a_const)
+        configure_linear_solver(self.ksp)
+        self.ksp.setFromOptions()
+        self.factorizations = 0
+        self.jacobian_builds = 0
+
+    def solve(self, b: PETSc.Vec, u: PETSc.Vec, t: float) -> tuple[int, int]:
+        if self.factorizations == 0:
+            self.ksp.setUp()
+            self.factorizations = 1
+        self.ksp.solve(b, u)
+        reason = self.ksp.getConvergedReason()
+        if reason < 0:
+            raise SolverError(f"linear solve failed at t = {t:.6g}: KSP reason {reason}")
+        return 0, self.ksp.getIterationNumber()
+
+
+class ContactStepSolver:
+    """Semismooth Newton (SNES) with the exact line search of SPEC 4.  Collective."""
+
+    def __init__(self, comm, a_const: PETSc.Mat, contact_pattern, law):
+        self.comm, self.a_const, self.law = comm, a_const, law
+        self.jacobian = a_const.duplicate(copy=True)
+        self.b = a_const.createVecRight()
+        self.smooth = a_const.createVecRight()  # A u - b at the last residual evaluation
+        self.factorizations = 0
+        self.jacobian_builds = 0
+        self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
+        self.record_energy = False
+        self._signature = None  # active set the Jacobian was built for
+        self._last_active = None  # active set at the last residual evaluation
+        self._step_active = None  # active set of the iterate a Newton step started from
+        self._full_step = False
+        self.snes = self._create_snes(comm)
+
+    def _create_snes(self, comm) -> PETSc.SNES:
+        snes = PETSc.SNES().create(comm)
+        snes.setType(PETSc.SNES.Type.NEWTONLS)
+        snes.setFunction(self._residual, self.a_const.createVecRight())
+        snes.setJacobian(self._jacobian_callback, self.jacobian)
+        # petsc4py 3.18 has no SNES.getLineSearch: default through the options database
+        options = PETSc.Options()
+        if not options.hasName("snes_linesearch_type"):
+            options.setValue("snes_linesearch_type", "basic")
+        snes.setLineSearchPreCheck(self._exact_line_search)
+        snes.setConvergenceTest(self._converged)
+        snes.setTolerances(rtol=1e-10, atol=1e-50, max_it=100)
+        configure_linear_solver(snes.getKSP())
+        snes.setFromOptions()
+        return snes
+
+    # -- J_n, its gradient and Jacobian ------------------------------------------
+    def energy(self, u: PETSc.Vec) -> float:
+        """J_n(u) up to a constant.  Collective."""
+        au = self.a_const.createVecLeft()
+        self.a_const.mult(u, au)
+        quadratic = 0.5 * au.dot(u) - self.b.dot(u)
+        return quadratic + self.law.energy(*self.law.kinematics(u))
+
+    def _residual(self, snes, u: PETSc.Vec, residual: PETSc.Vec) -> None:
+        self.a_const.mult(u, self.smooth)
+        self.smooth.axpy(-1.0, self.b)
+        self.smooth.copy(residual)
+        un, ut = self.law.kinematics(u)
+        self.law.add_residual(residual, un, ut)
+        self._last_active = self.law.active_set(un, ut)
+
+    def _jacobian_callback(self, snes, u, jacobian, preconditioner) -> None:
+        un, ut = self.law.kinematics(u)
+        active = self.law.active_set(un, ut)
+        self._step_active = active
+        changed = self._signature is None or not np.array_equal(active, self._signature)
+        if not self.comm.allreduce(changed):
+            return  # same matrix: PETSc keeps the factorization
+        self.a_const.copy(self.jacobian, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        add_owned_rows(self.jacobian, self.law.jacobian_rows(un, ut))
+        self._signature = active
+        self.jacobian_builds += 1
+
+    # -- the VI-aware line search ---------------------------------------------
+    def _exact_line_search(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:
+        """Scale the update y so that x - y minimizes J_n along -y.  Collective."""
+        direction = -y
+        ad = self.a_const.createVecLeft()
+        self.a_const.mult(direction, ad)
+        curvature = ad.dot(direction)  # d^T A d
+        start_slope = self.smooth.dot(direction)  # d^T (A x - b)
+        un, ut = self.law.kinematics(x)
+        dn, dt = self.law.kinematics(direction)
+
+        def derivative(step):
+            value, slope = self.law.directional(un, ut, dn, dt, step)
+            return start_slope + step * curvature + value, curvature + slope
+
+        before = self.energy(x) if self.record_energy else 0.0
+        step = _minimize_monotone(derivative)
+        self._full_step = step == 1.0
+        if not self._full_step:
+            y.scale(step)
+        if self.record_energy:
+            trial = x.copy()
+            trial.axpy(-1.0, y)
+            self.line_search_log.append((before, self.energy(trial)))
+        return not self._full_step
+
+    # -- convergence ------------------------------------------------------------
+    def _converged(self, snes, it, norms) -> int:
+        xnorm, ynorm, fnorm = norms
+        if not np.isfinite(fnorm):
+            return Reason.DIVERGED_FNORM_NAN
+        if it == 0:
+            self._fnorm0 = fnorm
+            return Reason.CONVERGED_FNORM_ABS if fnorm == 0.0 else Reason.ITERATING
+        settled = np.array_equal(self._last_active, self._step_active)
+        settled = self.comm.allreduce(not settled) == 0
+        rtol, atol, _, max_it = snes.getTolerances()
+        if settled and fnorm <= atol:
+            return Reason.CONVERGED_FNORM_ABS
+        if settled and fnorm <= rtol * self._fnorm0:
+            return Reason.CONVERGED_FNORM_RELATIVE
+        if settled and self._full_step:
+            return Reason.CONVERGED_SNORM_RELATIVE
+        if it >= max_it:
+            return Reason.DIVERGED_MAX_IT
+        return Reason.ITERATING
+
+    def solve(self, b: PETSc.Vec, u: PETSc.Vec, t: float) -> tuple[int, int]:
+        """Minimize J_n from the initial guess u (overwritten).  Collective."""
+        b.copy(self.b)
+        before = self.jacobian_builds
+        self.snes.solve(None, u)
+        reason = self.snes.getConvergedReason()
+        newton, linear = self.snes.getIterationNumber(), self.snes.getLinearSolveIterations()
+        self.factorizations += self.jacobian_builds - before
+        if reason <= 0:
+            raise SolverError(
+                f"Newton failed at t = {t:.6g}: SNES reason {_reason_name(reason)} after "
+                f"{newton} Newton and {linear} linear iterations"
+            )
+        return newton, linear
+
+
+def _minimize_monotone(derivative, tol: float = 1e-13, max_iter: int = 200) -> float:
+    """Root of a monotone piecewise-linear derivative on [0, inf); Newton inside a bracket.
+
+    ``derivative(t)`` returns (phi'(t), slope of the current piece).  phi'(0) < 0 for a
+    descent direction; if not, the direction is not a descent one and 0 is returned.
+    """
+    d0, _ = derivative(0.0)
+    if d0 >= 0.0:
+        return 0.0
+    scale = abs(d0)
+    value, slope = derivative(1.0)
+    if abs(value) <= tol * scale:
+        return 1.0
+    lo, hi = 0.0, np.inf
+    step = 1.0
+    for _ in range(max_iter):
+        if value < 0.0:
+            lo = step
+        else:
+            hi = step
+        if abs(value) <= tol * scale or hi - lo <= tol * hi:
+            return step
+        candidate = step - value / slope if slope > 0.0 else np.inf
+        if not lo < candidate < hi:
+            candidate = 2.0 * lo if np.isinf(hi) else 0.5 * (lo + hi)
+        step = candidate
+        value, slope = derivative(step)
+    return step
+
+
+def _reason_name(reason: int) -> str:
+    names = {v: k for k, v in vars(Reason).items() if isinstance(v, int)}
+    return f"{names.get(reason, 'UNKNOWN')} ({reason})"

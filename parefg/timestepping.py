@@ -1,0 +1,106 @@
+"""Time schemes and the time loop (SPEC 4).
+
+Schemes are registered by name in :data:`SCHEMES`.  Each step minimizes
+
+    J_n(u) = c_M/2 (u - ut_n)^T M (u - ut_n) + 1/2 u^T K u - F_n . u
+           + alpha_D/2 ||u - ubar_n||^2_{Gamma_D} + contact and friction energy,
+
+i.e. solves A_const u - b_n + contact forces = 0 with A_const = c_M M + K + alpha_D G_D
+(assembled once) and b_n = c_M M ut_n + F_n + alpha_D g_D(t_n).  Newmark has
+c_M = 1 / (beta k^2); the static scheme has c_M = 0 and steps the loads only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from petsc4py import PETSc
+
+
+@dataclass
+class State:
+    """Nodal parameters (not values: MLS does not interpolate) of one time level."""
+
+    u: PETSc.Vec
+    v: PETSc.Vec
+    a: PETSc.Vec
+
+
+class NewmarkScheme:
+    """Newmark(beta, gamma): predictor ut, vt; update a = (u - ut)/(beta k^2), v = vt + gamma k a."""
+
+    name = "newmark"
+    dynamic = True
+
+    def __init__(self, scene):
+        self.k, self.beta, self.gamma = scene.dt, scene.beta, scene.gamma
+
+    @property
+    def mass_coefficient(self) -> float:
+        return 1.0 / (self.beta * self.k**2)
+
+    def predict(self, state: State) -> tuple[PETSc.Vec, PETSc.Vec]:
+        k, beta, gamma = self.k, self.beta, self.gamma
+        ut = state.u.copy()
+        ut.axpy(k, state.v)
+        ut.axpy(k * k * (0.5 - beta), state.a)
+        vt = state.v.copy()
+        vt.axpy(k * (1.0 - gamma), state.a)
+        return ut, vt
+
+    def update(self, state: State, u: PETSc.Vec, ut: PETSc.Vec, vt: PETSc.Vec) -> State:
+        a = u.copy()
+        a.axpy(-1.0, ut)
+        a.scale(self.mass_coefficient)
+        v = vt.copy()
+        v.axpy(self.gamma * self.k, a)
+        return State(u=u, v=v, a=a)
+
+
+class StaticScheme:
+    """Quasi-static load stepping: no inertia, the same minimization at each t_n."""
+
+    name = "static"
+    dynamic = False
+    mass_coefficient = 0.0
+
+    def __init__(self, scene):
+        self.k = scene.dt
+
+    def predict(self, state: State) -> tuple[PETSc.Vec, PETSc.Vec]:
+        return state.u.copy(), state.v.copy()
+
+    def update(self, state: State, u: PETSc.Vec, ut: PETSc.Vec, vt: PETSc.Vec) -> State:
+        v = u.copy()
+        v.axpy(-1.0, state.u)
+        v.scale(1.0 / self.k)
+        return State(u=u, v=v, a=state.a.copy())
+
+
+SCHEMES = {scheme.name: scheme for scheme in (NewmarkScheme, StaticScheme)}
+
+
+def make_scheme(scene):
+    """The scheme named by ``[time] scheme``."""
+    return SCHEMES[scene.scheme](scene)
+
+
+def relative_errors(comm, disc, exact, u: PETSc.Vec, t: float) -> dict[str, float]:
+    """Relative L2 and H1-seminorm errors of u_h against the exact solution at t.  Collective."""
+    points, weights = disc.domain.points, disc.domain.weights
+    values = disc.domain.evaluate(u)  # (n_q, 2)
+    grads = disc.domain.evaluate_gradient(u)  # (n_q, 2, 2)
+    u_exact = exact.u(points[:, 0], points[:, 1], t).T  # (n_q, 2)
+    g_exact = np.moveaxis(exact.grad(points[:, 0], points[:, 1], t), -1, 0)  # (n_q, 2, 2)
+    sums = np.array([
+        np.dot(weights, np.sum((values - u_exact) ** 2, axis=1)),
+        np.dot(weights, np.sum(u_exact**2, axis=1)),
+        np.dot(weights, np.sum((grads - g_exact) ** 2, axis=(1, 2))),
+        np.dot(weights, np.sum(g_exact**2, axis=(1, 2))),
+    ])
+    sums = comm.allreduce(sums)
+    return {
+        "l2_rel": float(np.sqrt(sums[0] / sums[1])) if sums[1] > 0 else float(np.sqrt(sums[0])),
+        "h1_rel": float(np.sqrt(sums[2] / sums[3])) if sums[3] > 0 else float(np.sqrt(sums[2])),
+    }
