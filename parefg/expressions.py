@@ -1,0 +1,268 @@
+"""A safe expression language for scene values (SPEC 6, 9).
+
+Scene values such as ``"sin(pi*x)*exp(-t)"`` are parsed with :mod:`ast` and
+translated node by node into sympy through a whitelist: numbers, the
+variables x, y, t, the constants pi and e, the operators ``+ - * / **`` and a
+fixed set of numpy-named functions.  User text never reaches ``eval``,
+``exec`` or ``sympify``.  Inputs that could exhaust time or memory (very long
+text, deep nesting, huge integers, huge powers) are rejected before sympy
+sees them.
+
+The symbols are real, so that sympy differentiates ``abs`` and friends as
+real functions.  :func:`compile_field` turns a list of such expressions into a
+vectorized numpy function.
+"""
+
+import ast
+import math
+from collections.abc import Callable, Sequence
+from functools import reduce
+
+import numpy as np
+import sympy
+
+from parefg.errors import InputError
+
+MAX_LENGTH = 1000  # characters of one expression
+MAX_DEPTH = 50  # nesting levels (a chain a + b + c counts as one level)
+MAX_INTEGER_DIGITS = 30  # digits of one integer literal
+MAX_EXPONENT = 64  # |n| for a numeric exponent in a ** n
+MAX_NUMBER_DIGITS = 1000  # digits of an exact number built by a ** n
+
+#: Every symbol an expression may contain; ``nx``, ``ny`` (the outward unit
+#: normal) appear only in data derived from an exact solution, never in user text.
+SYMBOLS = {name: sympy.Symbol(name, real=True) for name in ("x", "y", "t", "nx", "ny")}
+VARIABLES = ("x", "y", "t")
+CONSTANTS = {"pi": sympy.pi, "e": sympy.E}
+
+#: name -> (sympy function, allowed numbers of arguments)
+FUNCTIONS = {
+    "sin": (sympy.sin, (1,)),
+    "cos": (sympy.cos, (1,)),
+    "tan": (sympy.tan, (1,)),
+    "arcsin": (sympy.asin, (1,)),
+    "arccos": (sympy.acos, (1,)),
+    "arctan": (sympy.atan, (1,)),
+    "asin": (sympy.asin, (1,)),
+    "acos": (sympy.acos, (1,)),
+    "atan": (sympy.atan, (1,)),
+    "sinh": (sympy.sinh, (1,)),
+    "cosh": (sympy.cosh, (1,)),
+    "tanh": (sympy.tanh, (1,)),
+    "exp": (sympy.exp, (1,)),
+    "log": (sympy.log, (1,)),
+    "sqrt": (sympy.sqrt, (1,)),
+    "abs": (sympy.Abs, (1,)),
+    "sign": (sympy.sign, (1,)),
+    "heaviside": (sympy.Heaviside, (1, 2)),
+    "min": (sympy.Min, range(2, 17)),
+    "max": (sympy.Max, range(2, 17)),
+    "atan2": (sympy.atan2, (2,)),
+    "arctan2": (sympy.atan2, (2,)),
+}
+
+ALLOWED = "use numbers, x, y, t, pi, e, + - * / ** and " + ", ".join(FUNCTIONS)
+
+_BINARY_OPERATORS = {
+    ast.Add: lambda a, b: a + b,
+    ast.Sub: lambda a, b: a - b,
+    ast.Mult: lambda a, b: a * b,
+    ast.Div: lambda a, b: a / b,
+    ast.Pow: lambda a, b: a**b,
+}
+_UNARY_OPERATORS = {ast.UAdd: lambda a: a, ast.USub: lambda a: -a}
+# Operators of one precedence level; a left-associated chain of them is one nesting level.
+_PRECEDENCE = {ast.Add: 0, ast.Sub: 0, ast.Mult: 1, ast.Div: 1}
+
+
+def _shorten(text: str, limit: int = 60) -> str:
+    """``repr`` of ``text`` cut to ``limit`` characters: one line, whatever the input."""
+    return repr(text if len(text) <= limit else text[: limit - 3] + "...")
+
+
+def parse_expression(value: int | float | str, key: str) -> sympy.Expr:
+    """Translate a scene value into a sympy expression in x, y, t.
+
+    Not collective.
+
+    Parameters
+    ----------
+    value
+        A number, or a string such as ``"(1 - cos(t)) * (1 + x) * exp(y)"``.
+    key
+        Where the value came from (e.g. ``"scene square: loads.f[0]"``); every
+        error message starts with it.
+
+    Returns
+    -------
+    sympy.Expr
+        A real, finite expression whose free symbols are among
+        ``SYMBOLS["x"], SYMBOLS["y"], SYMBOLS["t"]``.
+
+    Raises
+    ------
+    InputError
+        One line naming ``key`` and what is allowed, for anything outside the
+        whitelist or beyond the resource limits.
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
+        raise InputError(f"{key}: {_shorten(str(value))} is not an expression ({ALLOWED})")
+    text = value.strip() if isinstance(value, str) else repr(value)
+    if len(text) > MAX_LENGTH:
+        raise InputError(f"{key}: expression of {len(text)} characters (at most {MAX_LENGTH})")
+    try:
+        tree = ast.parse(text, mode="eval")
+    except (SyntaxError, ValueError, RecursionError, MemoryError) as exc:
+        reason = getattr(exc, "msg", None) or str(exc).splitlines()[0]
+        raise InputError(f"{key}: {_shorten(text)} is not a valid expression ({reason})") from None
+    expr = _Translator(text, key).build(tree.body, depth=1)
+    # Division by zero, sqrt(-1), log(0), ... leave sympy's non-real or infinite atoms.
+    if expr.has(sympy.I, sympy.zoo, sympy.nan, sympy.oo, -sympy.oo):
+        raise InputError(f"{key}: {_shorten(text)} is not a finite real expression")
+    return expr
+
+
+class _Translator:
+    """Build a sympy expression from a whitelisted :mod:`ast` tree."""
+
+    def __init__(self, text: str, key: str):
+        self.text = text
+        self.key = key
+
+    def reject(self, node: ast.AST, why: str = "") -> InputError:
+        """The one-line error for ``node``: its source text and what is allowed."""
+        segment = ast.get_source_segment(self.text, node) or self.text
+        return InputError(f"{self.key}: {_shorten(segment)} is not allowed ({why or ALLOWED})")
+
+    def build(self, node: ast.AST, depth: int) -> sympy.Expr:
+        """Translate ``node`` nested ``depth`` levels deep."""
+        if depth > MAX_DEPTH:
+            raise self.reject(node, f"nested more than {MAX_DEPTH} levels deep")
+        handler = self._HANDLERS.get(type(node))
+        if handler is None:
+            raise self.reject(node)
+        return handler(self, node, depth)
+
+    def constant(self, node: ast.Constant, depth: int) -> sympy.Expr:
+        value = node.value
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.reject(node)
+        if isinstance(value, int):
+            if len(str(abs(value))) > MAX_INTEGER_DIGITS:
+                raise self.reject(node, f"integers have at most {MAX_INTEGER_DIGITS} digits")
+            return sympy.Integer(value)
+        if not math.isfinite(value):
+            raise self.reject(node, "numbers must be finite")
+        return sympy.Float(value)
+
+    def name(self, node: ast.Name, depth: int) -> sympy.Expr:
+        if node.id in VARIABLES:
+            return SYMBOLS[node.id]
+        if node.id in CONSTANTS:
+            return CONSTANTS[node.id]
+        raise self.reject(node)
+
+    def unary(self, node: ast.UnaryOp, depth: int) -> sympy.Expr:
+        operator = _UNARY_OPERATORS.get(type(node.op))
+        if operator is None:
+            raise self.reject(node)
+        return operator(self.build(node.operand, depth + 1))
+
+    def binary(self, node: ast.BinOp, depth: int) -> sympy.Expr:
+        operator = _BINARY_OPERATORS.get(type(node.op))
+        if operator is None:
+            raise self.reject(node)
+        # a + b + c parses as ((a + b) + c): the left chain is one level, not many.
+        level = _PRECEDENCE.get(type(node.op))
+        chained = isinstance(node.left, ast.BinOp) and _PRECEDENCE.get(type(node.left.op)) == level
+        left = self.build(node.left, depth if level is not None and chained else depth + 1)
+        right = self.build(node.right, depth + 1)
+        if isinstance(node.op, ast.Pow):
+            self._check_power(node, left, right)
+        return operator(left, right)
+
+    def _check_power(self, node: ast.BinOp, base: sympy.Expr, exponent: sympy.Expr) -> None:
+        """Refuse powers sympy would evaluate exactly at great cost (9**9**9)."""
+        if not exponent.is_Number:
+            return
+        if abs(exponent) > MAX_EXPONENT:
+            raise self.reject(node, f"numeric exponents are at most {MAX_EXPONENT} in size")
+        if base.is_Rational and base != 0:
+            numerator, denominator = base.as_numer_denom()
+            digits = math.log10(abs(int(numerator))) + math.log10(abs(int(denominator)))
+            if digits * abs(float(exponent)) > MAX_NUMBER_DIGITS:
+                raise self.reject(node, f"exact numbers have at most {MAX_NUMBER_DIGITS} digits")
+
+    def call(self, node: ast.Call, depth: int) -> sympy.Expr:
+        if not isinstance(node.func, ast.Name) or node.func.id not in FUNCTIONS:
+            raise self.reject(node)
+        function, arities = FUNCTIONS[node.func.id]
+        if node.keywords:
+            raise self.reject(node, "keyword arguments are not allowed")
+        if len(node.args) not in arities:
+            many = len(arities) > 2
+            counts = f"{arities[0]} to {arities[-1]}" if many else " or ".join(map(str, arities))
+            plural = "" if counts == "1" else "s"
+            raise self.reject(node, f"{node.func.id} takes {counts} argument{plural}")
+        return function(*(self.build(arg, depth + 1) for arg in node.args))
+
+    _HANDLERS: dict[type, Callable[..., sympy.Expr]] = {
+        ast.Constant: constant,
+        ast.Name: name,
+        ast.UnaryOp: unary,
+        ast.BinOp: binary,
+        ast.Call: call,
+    }
+
+
+def _minimum(values, axis=0):
+    """sympy prints Min(a, b, ...) as ``amin((a, b, ...), axis=0)``; allow mixed shapes."""
+    return reduce(np.minimum, values)
+
+
+def _maximum(values, axis=0):
+    return reduce(np.maximum, values)
+
+
+def _dirac_delta(argument, *order):
+    """Derivatives of heaviside/sign/abs: zero almost everywhere, which is what quadrature sees."""
+    return np.zeros_like(np.asarray(argument, dtype=float))
+
+
+_NUMPY_EXTRAS = {"amin": _minimum, "amax": _maximum, "DiracDelta": _dirac_delta}
+
+
+def compile_field(
+    exprs: Sequence[sympy.Expr], args: Sequence[str] = VARIABLES
+) -> Callable[..., np.ndarray]:
+    """Vectorize expressions into one numpy function.
+
+    Not collective.
+
+    Parameters
+    ----------
+    exprs
+        k sympy expressions whose free symbols are among ``SYMBOLS[a]`` for ``a`` in ``args``.
+    args
+        Names of the positional arguments of the returned function.
+
+    Returns
+    -------
+    callable
+        ``field(*values) -> ndarray`` of shape ``(k, *shape)``, where ``shape``
+        is the broadcast shape of ``values`` (``(n,)`` for points x, y of shape
+        ``(n,)`` and a scalar t).  Constant expressions are broadcast to full
+        shape, and the result is a fresh, writable float array.
+    """
+    symbols = [SYMBOLS[name] for name in args]
+    components = sympy.lambdify(symbols, list(exprs), modules=[_NUMPY_EXTRAS, "numpy"])
+
+    def field(*values):
+        shape = np.broadcast(*values).shape
+        # (k, *shape)
+        out = np.empty((len(exprs), *shape))
+        for row, component in enumerate(components(*values)):
+            out[row] = component
+        return out
+
+    return field
