@@ -1,0 +1,307 @@
+"""Moving least-squares (MLS) shape functions and their analytic gradients (SPEC 2).
+
+For an evaluation point x with neighbours I (the nodes whose support covers x,
+|x - x_I| < d_I) the MLS shape functions are
+
+    phi_I(x) = p(0)^T A(x)^-1 w_I(x) p_I,    A(x) = sum_I w_I(x) p_I p_I^T,
+
+with w_I(x) = W(|x - x_I| / d_I) and p_I = p((x_I - x) / R) the complete Pascal
+basis of degree m, shifted to x and scaled by R (the largest support radius
+among the neighbours of x) so that A is well conditioned at any length scale.
+
+Gradients are analytic.  MLS is invariant under an affine change of the
+polynomial basis, so the shift centre c may be frozen at c = x while
+differentiating: with p_c(y) = p((y - c) / R),
+
+    gamma = A^-1 p(0),   A gamma_k = dp/dxi_k(0) / R - A_k gamma,
+    A_k = sum_I dw_I/dx_k p_I p_I^T,
+    dphi_I/dx_k = (gamma_k^T p_I) w_I + (gamma^T p_I) dw_I/dx_k.
+
+Everything is vectorized over points (padded neighbour lists, batched dense
+linear algebra); Python loops run only over basis terms and chunks of points.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from parefg.errors import InputError
+from parefg.weights import get_weight
+
+# Moment matrices less well conditioned than this are rejected.
+MAX_CONDITION = 1e12
+# Points per batch of dense linear algebra: bounds memory at about 100 MB for m = 3.
+CHUNK_POINTS = 20000
+
+
+class MLSError(InputError):
+    """A point whose moment matrix A(x) is singular or badly conditioned."""
+
+
+@dataclass
+class ShapeValues:
+    """MLS shape functions at a set of points, on padded neighbour lists.
+
+    Attributes
+    ----------
+    neighbours : ndarray of int64, shape (n_points, n_max)
+        Node indices; padding entries hold a valid index with mask False.
+    mask : ndarray of bool, shape (n_points, n_max)
+        True where the node's support covers the point.
+    phi : ndarray, shape (n_points, n_max)
+        Shape function values, 0 at padding.
+    dphi : ndarray, shape (n_points, n_max, 2), or None
+        Shape function gradients, 0 at padding; None when not requested.
+    condition : ndarray, shape (n_points,)
+        Condition number of the scaled moment matrix A(x): ||A||_F ||A^-1||_F, an upper
+        bound of the 2-norm condition number that exceeds it by at most a factor n_basis.
+    """
+
+    neighbours: np.ndarray
+    mask: np.ndarray
+    phi: np.ndarray
+    dphi: np.ndarray | None
+    condition: np.ndarray
+
+
+def n_basis(degree: int) -> int:
+    """Number of complete Pascal monomials of total degree <= m in 2D: (m + 1)(m + 2) / 2."""
+    return (degree + 1) * (degree + 2) // 2
+
+
+def basis_exponents(degree: int) -> np.ndarray:
+    """Exponents (a, b) of the monomials xi^a eta^b, ordered by total degree.
+
+    Returns
+    -------
+    ndarray of int, shape (n_basis, 2)
+        Row 0 is (0, 0), rows 1 and 2 are (1, 0) and (0, 1), then degree 2, ...
+    """
+    return np.array(
+        [(total - b, b) for total in range(degree + 1) for b in range(total + 1)], dtype=int
+    )
+
+
+def pascal_basis(xi: np.ndarray, degree: int) -> np.ndarray:
+    """Complete Pascal basis p(xi) = [xi^a eta^b], a + b <= m, for points xi of shape (..., 2).
+
+    Returns
+    -------
+    ndarray, shape (..., n_basis(degree))
+    """
+    exponents = basis_exponents(degree)
+    # Powers xi^0..xi^m and eta^0..eta^m by repeated products (cheaper than **), (..., m + 1).
+    powers_x = np.empty((*xi.shape[:-1], degree + 1))
+    powers_y = np.empty_like(powers_x)
+    powers_x[..., 0] = powers_y[..., 0] = 1.0
+    for power in range(1, degree + 1):
+        powers_x[..., power] = powers_x[..., power - 1] * xi[..., 0]
+        powers_y[..., power] = powers_y[..., power - 1] * xi[..., 1]
+    return powers_x[..., exponents[:, 0]] * powers_y[..., exponents[:, 1]]
+
+
+class MLS:
+    """MLS shape functions of one node cloud (not collective: each rank evaluates its own points).
+
+    Parameters
+    ----------
+    nodes : array_like, shape (n_nodes, 2)
+        Node coordinates x_I.
+    support_radius : array_like, shape (n_nodes,) or scalar
+        Support radius d_I of each node (dilation s times local spacing c_I).
+    degree : int
+        Degree m of the Pascal basis: 1, 2 or 3.
+    weight : str
+        Name of a registered weight (see :data:`parefg.weights.WEIGHTS`).
+    support_factor : float, optional
+        The dilation s, only quoted in error messages.
+    """
+
+    def __init__(
+        self,
+        nodes,
+        support_radius,
+        degree: int,
+        weight: str = "cubic",
+        support_factor: float | None = None,
+    ):
+        if degree not in (1, 2, 3):
+            raise InputError(f"discretization.degree: must be 1, 2 or 3, got {degree!r}")
+        self.nodes = np.ascontiguousarray(nodes, dtype=float).reshape(-1, 2)  # (n_nodes, 2)
+        self.support_radius = np.broadcast_to(
+            np.asarray(support_radius, dtype=float), (len(self.nodes),)
+        ).copy()  # (n_nodes,)
+        if len(self.nodes) == 0 or not np.all(self.support_radius > 0):
+            raise InputError("MLS needs at least one node and positive support radii")
+        self.degree = int(degree)
+        self.n_basis = n_basis(self.degree)
+        self.weight = get_weight(weight)
+        self.support_factor = support_factor
+        self.max_radius = float(self.support_radius.max())
+        self.tree = cKDTree(self.nodes)
+
+    def evaluate(self, points: np.ndarray, gradients: bool = True) -> ShapeValues:
+        """Shape functions (and gradients) at ``points`` of shape (n_points, 2). Not collective.
+
+        Raises
+        ------
+        MLSError
+            At the first point whose moment matrix has fewer neighbours than basis
+            terms or a condition number above ``MAX_CONDITION``.
+        """
+        points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)  # (n_points, 2)
+        neighbours, mask = self.find_neighbours(points)
+        phi = np.zeros(neighbours.shape)  # (n_points, n_max)
+        dphi = np.zeros((*neighbours.shape, 2)) if gradients else None  # (n_points, n_max, 2)
+        condition = np.zeros(len(points))  # (n_points,)
+        for start in range(0, len(points), CHUNK_POINTS):
+            chunk = slice(start, start + CHUNK_POINTS)
+            phi[chunk], chunk_dphi, condition[chunk] = self._evaluate_chunk(
+                points[chunk], neighbours[chunk], mask[chunk], gradients
+            )
+            if gradients:
+                dphi[chunk] = chunk_dphi
+        return ShapeValues(neighbours, mask, phi, dphi, condition)
+
+    def find_neighbours(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Padded lists of the nodes I with |x - x_I| < d_I, nearest first.
+
+        Returns
+        -------
+        neighbours : ndarray of int64, shape (n_points, n_max)
+        mask : ndarray of bool, shape (n_points, n_max)
+        """
+        if len(points) == 0:
+            return np.zeros((0, 0), dtype=np.int64), np.zeros((0, 0), dtype=bool)
+        # The largest radius bounds every support: candidates within it ...
+        distance, index = self._candidates(points)
+        found = index < len(self.nodes)
+        index = np.where(found, index, 0).astype(np.int64)
+        # ... then keep the nodes whose own support covers the point, in front.
+        mask = found & (distance < self.support_radius[index])
+        order = np.argsort(~mask, axis=1, kind="stable")
+        n_max = max(int(mask.sum(axis=1).max()), 1)
+        neighbours = np.take_along_axis(index, order, axis=1)[:, :n_max]
+        mask = np.take_along_axis(mask, order, axis=1)[:, :n_max]
+        return np.where(mask, neighbours, neighbours[:, :1]), mask
+
+    def _candidates(self, points):
+        """Nodes within the largest support radius of each point, nearest first.
+
+        The padding width k is guessed from a sample of points and doubled for the
+        rows that come back full, so no row loses a node.
+
+        Returns
+        -------
+        distance : ndarray, shape (n_points, k); inf at missing entries
+        index : ndarray of int, shape (n_points, k); n_nodes at missing entries
+        """
+        n_nodes = len(self.nodes)
+        sample = points[:: max(1, len(points) // 256)]
+        counts = self.tree.query_ball_point(sample, r=self.max_radius, return_length=True)
+        k = min(n_nodes, int(1.25 * np.max(counts)) + 1)
+        distance, index = self._query(points, k)  # (n_points, k)
+        full = index[:, -1] < n_nodes
+        while full.any() and k < n_nodes:
+            k = min(n_nodes, 2 * k)
+            wider_distance, wider_index = self._query(points[full], k)
+            distance = np.pad(
+                distance, ((0, 0), (0, k - distance.shape[1])), constant_values=np.inf
+            )
+            index = np.pad(index, ((0, 0), (0, k - index.shape[1])), constant_values=n_nodes)
+            distance[full], index[full] = wider_distance, wider_index
+            full[full] = wider_index[:, -1] < n_nodes
+        return distance, index
+
+    def _query(self, points, k):
+        """k nearest nodes within the largest support radius, (n_points, k) each."""
+        return self.tree.query(
+            points, k=list(range(1, k + 1)), distance_upper_bound=self.max_radius
+        )
+
+    def _weights(self, points, neighbours, mask):
+        """Weights w_I(x), their gradients dw_I/dx, offsets x_I - x and the basis scale R."""
+        offset = self.nodes[neighbours] - points[:, None, :]  # (n, n_max, 2): x_I - x
+        distance = np.sqrt(np.einsum("nkd,nkd->nk", offset, offset))  # (n, n_max)
+        radius = self.support_radius[neighbours]  # (n, n_max)
+        r = distance / radius
+        w = np.where(mask, self.weight.value(r), 0.0)  # (n, n_max)
+        # dw/dx = W'(r) dr/dx with dr/dx = (x - x_I) / (|x - x_I| d_I); W'(0) = 0 at r = 0.
+        slope = np.where(mask, self.weight.derivative(r), 0.0)
+        safe_distance = np.where(distance > 0.0, distance, 1.0)
+        dw = (-slope / (safe_distance * radius))[..., None] * offset  # (n, n_max, 2)
+        scale = np.max(np.where(mask, radius, 0.0), axis=1)  # (n,) R
+        return w, dw, offset, np.where(scale > 0.0, scale, 1.0)
+
+    def _check_conditioning(self, points, mask, condition):
+        """Raise MLSError at the first point with too few neighbours or an ill-conditioned A."""
+        counts = mask.sum(axis=1)
+        bad = (counts < self.n_basis) | ~(condition <= MAX_CONDITION)
+        if not bad.any():
+            return
+        i = int(np.argmax(bad))
+        x, y = points[i]
+        if counts[i] < self.n_basis or not np.isfinite(condition[i]):
+            problem = "singular"
+        else:
+            problem = (
+                f"badly conditioned (condition number {condition[i]:.1e} > {MAX_CONDITION:.0e})"
+            )
+        now = "" if self.support_factor is None else f" (now {self.support_factor:g})"
+        raise MLSError(
+            f"MLS moment matrix {problem} at point ({x:.6g}, {y:.6g}): {counts[i]} neighbours "
+            f"for {self.n_basis} basis functions (degree {self.degree}); "
+            f"increase discretization.support{now}"
+        )
+
+    @staticmethod
+    def _invert(moment):
+        """A^-1 (n, n_basis, n_basis) and the condition estimate ||A||_F ||A^-1||_F (n,).
+
+        The Frobenius estimate bounds the 2-norm condition number from above, by at
+        most a factor n_basis, at the price of the inverse that is needed anyway.
+        When LU breaks down on an (exactly) singular matrix, the chunk falls back to
+        eigenvalues: matrices beyond ``MAX_CONDITION`` get an infinite condition
+        (they are rejected anyway) and only the others are inverted.
+        """
+        try:
+            inverse = np.linalg.inv(moment)
+        except np.linalg.LinAlgError:
+            eigenvalues = np.linalg.eigvalsh(moment)  # (n, n_basis), ascending
+            invertible = eigenvalues[:, 0] * MAX_CONDITION > eigenvalues[:, -1]
+            inverse = np.zeros_like(moment)
+            inverse[invertible] = np.linalg.inv(moment[invertible])
+            condition = MLS._frobenius_condition(moment, inverse)
+            return inverse, np.where(invertible, condition, np.inf)
+        return inverse, MLS._frobenius_condition(moment, inverse)
+
+    @staticmethod
+    def _frobenius_condition(moment, inverse):
+        """||A||_F ||A^-1||_F for stacks of matrices, (n,)."""
+        return np.linalg.norm(moment, axis=(1, 2)) * np.linalg.norm(inverse, axis=(1, 2))
+
+    def _evaluate_chunk(self, points, neighbours, mask, gradients):
+        """phi (n, n_max), dphi (n, n_max, 2) or None and condition (n,) for one chunk of points."""
+        w, dw, offset, scale = self._weights(points, neighbours, mask)
+        basis = pascal_basis(offset / scale[:, None, None], self.degree)  # (n, n_max, n_basis)
+        basis_t = basis.transpose(0, 2, 1)  # (n, n_basis, n_max)
+        moment = (basis_t * w[:, None, :]) @ basis  # (n, n_basis, n_basis) A
+        self._check_conditioning(points, mask, np.zeros(len(points)))  # neighbour counts first
+        inverse, condition = self._invert(moment)
+        self._check_conditioning(points, mask, condition)
+
+        gamma = inverse[:, :, 0]  # (n, n_basis): A^-1 p(0), p(0) = e_0
+        basis_gamma = np.einsum("nki,ni->nk", basis, gamma)  # (n, n_max): gamma^T p_I
+        phi = w * basis_gamma
+        if not gradients:
+            return phi, None, condition
+        dphi = np.empty((*phi.shape, 2))  # (n, n_max, 2)
+        for k in range(2):
+            moment_k = (basis_t * dw[:, None, :, k]) @ basis  # (n, n_basis, n_basis) A_k
+            # A gamma_k = dp/dxi_k(0) / R - A_k gamma; dp/dxi_k(0) = e_{1+k}.
+            rhs = -np.einsum("nij,nj->ni", moment_k, gamma)
+            rhs[:, 1 + k] += 1.0 / scale
+            gamma_k = np.einsum("nij,nj->ni", inverse, rhs)  # (n, n_basis)
+            dphi[..., k] = w * np.einsum("nki,ni->nk", basis, gamma_k) + dw[..., k] * basis_gamma
+        return phi, dphi, condition
