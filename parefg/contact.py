@@ -101,6 +101,19 @@ class ContactLaw:
         """Packed (closed, stick) flags: the data the semismooth Jacobian depends on."""
         return np.concatenate([un > self.gap, ~self._sliding(ut)])
 
+    def piece(self, un, ut) -> np.ndarray:
+        """Which linear piece of the residual each point is on (int8 code per point).
+
+        closed/open times stick/slip forward/slip backward: on one piece the residual is
+        affine in u, so a full Newton step that stays on its piece solves the step exactly.
+        """
+        code = (un > self.gap).astype(np.int8)
+        if self.has_friction:
+            z = self.alpha_t * (ut - self.slip)
+            friction_state = np.where(z >= self.bound, 1, np.where(z <= -self.bound, 2, 0))
+            code = code + 2 * friction_state.astype(np.int8)
+        return code
+
     def add_residual(self, residual: PETSc.Vec, un, ut) -> None:
         """residual += B_nu^T (w p) + B_tau^T (w f).  Collective."""
         pressure, friction = self.forces(un, ut)

@@ -18,7 +18,7 @@ from petsc4py import PETSc
 
 from parefg.assembly import gram_matrix, interleave, owned_rows, petsc_matrix, shape_matrix
 from parefg.geometry import NodeCloud, build_node_cloud
-from parefg.mls import MLS, ShapeValues
+from parefg.mls import MLS, MLSError, ShapeValues
 from parefg.partition import Partition, partition_cloud
 from parefg.quadrature import Quadrature, cell_quadrature, segment_quadrature
 
@@ -171,8 +171,15 @@ class _Builder:
         )
 
     def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
+        """MLS at this rank's points; an MLS failure on any rank is raised on every rank."""
         tic = time.perf_counter()
-        shape = self.mls.evaluate(points, gradients=gradients)
+        try:
+            shape, message = self.mls.evaluate(points, gradients=gradients), None
+        except MLSError as error:
+            shape, message = None, str(error)
+        messages = [m for m in self.comm.allgather(message) if m]
+        if messages:
+            raise MLSError(messages[0])
         self.conditions.append(shape.condition)
         self.timings["mls"] += time.perf_counter() - tic
         return shape

@@ -17,9 +17,10 @@ current linear piece inside a shrinking bracket (exact after finitely many piece
 J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, even
 another -snes_linesearch_type) still applies.
 
-Convergence: the residual meets the SNES tolerances, or the full Newton step was taken
-and the active set did not change -- then F is linear on that piece and the step solved
-it exactly -- in both cases only once the active set settled.
+Convergence: the full Newton step stayed on one linear piece of the residual (every
+Gamma_C point kept its open/closed and stick/slip-direction status) -- then the step
+solved the affine residual of that piece exactly, whatever alpha does to the residual's
+scale -- or, with a settled active set, the residual meets the SNES tolerances.
 """
 
 from __future__ import annotations
@@ -79,7 +80,7 @@ class ContactStepSolver:
         self._signature = None  # active set the Jacobian was built for
         self._last_active = None  # active set at the last residual evaluation
         self._step_active = None  # active set of the iterate a Newton step started from
-        self._full_step = False
+        self._exact_piece = False
         self.snes = self._create_snes(comm)
 
     def _create_snes(self, comm) -> PETSc.SNES:
@@ -93,7 +94,7 @@ class ContactStepSolver:
             options.setValue("snes_linesearch_type", "basic")
         snes.setLineSearchPreCheck(self._exact_line_search)
         snes.setConvergenceTest(self._converged)
-        snes.setTolerances(rtol=1e-10, atol=1e-50, max_it=100)
+        snes.setTolerances(rtol=1e-12, atol=1e-50, max_it=200)
         configure_linear_solver(snes.getKSP())
         snes.setFromOptions()
         return snes
@@ -128,29 +129,33 @@ class ContactStepSolver:
 
     # -- the VI-aware line search ---------------------------------------------
     def _exact_line_search(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:
-        """Scale the update y so that x - y minimizes J_n along -y.  Collective."""
+        """Scale the update y so that x - y minimizes J_n along -y.  Collective.
+
+        If every Gamma_C point is on the same linear piece at x and at x - y, J_n is one
+        quadratic on the whole segment and the full Newton step is its exact minimizer.
+        """
         direction = -y
-        ad = self.a_const.createVecLeft()
-        self.a_const.mult(direction, ad)
-        curvature = ad.dot(direction)  # d^T A d
-        start_slope = self.smooth.dot(direction)  # d^T (A x - b)
         un, ut = self.law.kinematics(x)
         dn, dt = self.law.kinematics(direction)
-
-        def derivative(step):
-            value, slope = self.law.directional(un, ut, dn, dt, step)
-            return start_slope + step * curvature + value, curvature + slope
-
+        same_piece = np.array_equal(self.law.piece(un, ut), self.law.piece(un + dn, ut + dt))
+        self._exact_piece = self.comm.allreduce(not same_piece) == 0
         before = self.energy(x) if self.record_energy else 0.0
-        step = _minimize_monotone(derivative)
-        self._full_step = step == 1.0
-        if not self._full_step:
-            y.scale(step)
+        if not self._exact_piece:
+            ad = self.a_const.createVecLeft()
+            self.a_const.mult(direction, ad)
+            curvature = ad.dot(direction)  # d^T A d
+            start_slope = self.smooth.dot(direction)  # d^T (A x - b)
+
+            def derivative(step):
+                value, slope = self.law.directional(un, ut, dn, dt, step)
+                return start_slope + step * curvature + value, curvature + slope
+
+            y.scale(_minimize_monotone(derivative))
         if self.record_energy:
             trial = x.copy()
             trial.axpy(-1.0, y)
             self.line_search_log.append((before, self.energy(trial)))
-        return not self._full_step
+        return not self._exact_piece
 
     # -- convergence ------------------------------------------------------------
     def _converged(self, snes, it, norms) -> int:
@@ -160,6 +165,8 @@ class ContactStepSolver:
         if it == 0:
             self._fnorm0 = fnorm
             return Reason.CONVERGED_FNORM_ABS if fnorm == 0.0 else Reason.ITERATING
+        if self._exact_piece:  # the full step solved the (affine) residual on its piece
+            return Reason.CONVERGED_SNORM_RELATIVE
         settled = np.array_equal(self._last_active, self._step_active)
         settled = self.comm.allreduce(not settled) == 0
         rtol, atol, _, max_it = snes.getTolerances()
@@ -167,8 +174,6 @@ class ContactStepSolver:
             return Reason.CONVERGED_FNORM_ABS
         if settled and fnorm <= rtol * self._fnorm0:
             return Reason.CONVERGED_FNORM_RELATIVE
-        if settled and self._full_step:
-            return Reason.CONVERGED_SNORM_RELATIVE
         if it >= max_it:
             return Reason.DIVERGED_MAX_IT
         return Reason.ITERATING
