@@ -40,14 +40,9 @@ import numpy as np
 from parefg.errors import InputError
 
 H5_NAME = "result.h5"
-XDMF_NUMBER_TYPES = {
-    ("f", False): "Float",
-    ("i", False): "Int",
-    ("u", False): "UInt",
-    ("i", True): "Char",
-    ("u", True): "UChar",
-    ("b", True): "UChar",
-}
+# XDMF number types by numpy kind; XDMF calls 1-byte integers Char / UChar (status is int8)
+XDMF_NUMBER_TYPES = {"f": "Float", "i": "Int", "u": "UInt"}
+XDMF_BYTE_TYPES = {"i": "Char", "u": "UChar", "b": "UChar"}
 XDMF_NAME = "result.xdmf"
 # growable 1-D float columns of /history, NaN where a row lacked the column
 GROWING_FLOATS = dict(maxshape=(None,), dtype=np.float64, chunks=(256,), fillvalue=np.nan)
@@ -299,13 +294,8 @@ def _agreed_layout(comm, path: str, values: np.ndarray, n_local: int) -> tuple:
     """Trailing shape and dtype of a point array, checked equal on every rank; collective."""
     local_ok = values.ndim in (1, 2) and values.shape[0] == n_local
     layout = (values.shape[1:], values.dtype.str)
-    _raise_on_all(
-        comm,
-        local_ok,
-        f"{path}: expected an array of shape (n_points,) or "
-        f"(n_points, c) with one row per owned point",
-        agree=False,
-    )
+    message = f"{path}: need one row per owned point, shape (n_owned,) or (n_owned, c)"
+    _raise_on_all(comm, local_ok, message, agree=False)
     _raise_on_all(comm, layout, f"{path}: shape or dtype differs between ranks")
     return values.shape[1:], values.dtype
 
@@ -415,8 +405,8 @@ def _point_grid(parent, name: str, coordinates: str, n_points: int, specs: list)
 def _data_item(parent, path: str, shape: tuple, dtype: np.dtype) -> None:
     """An HDF DataItem pointing at ``result.h5:/path``."""
     dtype = np.dtype(dtype)
-    # XDMF names 1-byte integers Char / UChar; status (int8) is one of them
-    number_type = XDMF_NUMBER_TYPES[dtype.kind, dtype.itemsize == 1]
+    types = XDMF_BYTE_TYPES if dtype.itemsize == 1 else XDMF_NUMBER_TYPES
+    number_type = types[dtype.kind]
     dimensions = " ".join(str(n) for n in shape)
     item = ET.SubElement(parent, "DataItem", Dimensions=dimensions, NumberType=number_type)
     item.attrib.update(Precision=str(dtype.itemsize), Format="HDF")
