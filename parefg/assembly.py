@@ -51,7 +51,9 @@ def _alltoallv(comm, send: np.ndarray, send_counts: np.ndarray) -> np.ndarray:
     send_displs = np.concatenate([[0], np.cumsum(send_counts)[:-1]])
     recv_displs = np.concatenate([[0], np.cumsum(recv_counts)[:-1]])
     mpi_type = MPI._typedict[send.dtype.char]
-    comm.Alltoallv([send, (send_counts, send_displs), mpi_type], [recv, (recv_counts, recv_displs), mpi_type])
+    comm.Alltoallv(
+        [send, (send_counts, send_displs), mpi_type], [recv, (recv_counts, recv_displs), mpi_type]
+    )
     return recv
 
 

@@ -34,14 +34,21 @@ def _split_petsc_options(argv: list[str]) -> tuple[list[str], list[str]]:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="parefg", description="PETSc-parallel EFG solver for dynamic contact with friction. "
-        "PETSc options (-snes_monitor, -ksp_type, ...) are accepted anywhere.")
+        prog="parefg",
+        description="PETSc-parallel EFG solver for dynamic contact with friction. "
+        "PETSc options (-snes_monitor, -ksp_type, ...) are accepted anywhere.",
+    )
     parser.add_argument("--version", action="version", version=f"parefg {__version__}")
     sub = parser.add_subparsers(dest="command")
     run = sub.add_parser("run", help="run a scene")
     run.add_argument("scene", help="built-in scene name or path to a TOML file")
-    run.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                     help="override a scene value (repeatable)")
+    run.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a scene value (repeatable)",
+    )
     run.add_argument("--out", help="output directory (must not exist or be empty)")
     run.add_argument("--quiet", action="store_true", help="no progress output")
     run.add_argument("--fail-at-step", type=int, help="testing: fail on purpose at this step")
@@ -106,8 +113,9 @@ def _dispatch(comm, args) -> int:
     from parefg import commands
 
     if args.command is None:  # `mpirun -n 2 parefg`: the default scene at modest resolution
-        args = argparse.Namespace(command="run", scene="square", set=[], out=None,
-                                  quiet=False, fail_at_step=None)
+        args = argparse.Namespace(
+            command="run", scene="square", set=[], out=None, quiet=False, fail_at_step=None
+        )
     return getattr(commands, args.command)(comm, args)
 
 

@@ -43,8 +43,11 @@ def info(comm, args) -> int:
 
     if comm.rank == 0:
         config = petsc4py.get_config()
-        packages = [p for p in ("mumps", "hypre", "superlu_dist", "hdf5", "metis", "parmetis")
-                    if PETSc.Sys.hasExternalPackage(p)]
+        packages = [
+            p
+            for p in ("mumps", "hypre", "superlu_dist", "hdf5", "metis", "parmetis")
+            if PETSc.Sys.hasExternalPackage(p)
+        ]
         rows = [
             ("parefg", __version__),
             ("python", platform.python_version()),

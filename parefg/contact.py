@@ -48,13 +48,26 @@ class ContactLaw:
         self.slip = np.zeros(len(self.weights))  # xi, accumulated slip
         # rotated value operator: rows 2q = nu_q . u_h(x_q), 2q + 1 = tau_q . u_h(x_q)
         values = _scipy_from_petsc(points.values)
-        rotation = sp.block_diag([np.array([n, t]) for n, t in zip(normals, self.tangents)],
-                                 format="csr") if len(normals) else sp.csr_matrix((0, 0))
-        local = (rotation @ values).tocsr() if len(normals) else values
+        n_points = len(normals)
+        q = np.arange(n_points)
+        rotation = sp.csr_matrix(
+            (
+                np.concatenate(
+                    [normals[:, 0], normals[:, 1], self.tangents[:, 0], self.tangents[:, 1]]
+                ),
+                (
+                    np.concatenate([2 * q, 2 * q, 2 * q + 1, 2 * q + 1]),
+                    np.concatenate([2 * q, 2 * q + 1, 2 * q, 2 * q + 1]),
+                ),
+            ),
+            shape=(2 * n_points, 2 * n_points),
+        )
+        local = (rotation @ values).tocsr()
         self.normal_op = local[0::2]  # (n_c, n_dofs) scipy, for the Jacobian
         self.tangent_op = local[1::2]
-        self.operator = petsc_matrix(comm, local, points.values.getLocalSize()[1],
-                                     points.values.getSize()[1])
+        self.operator = petsc_matrix(
+            comm, local, points.values.getLocalSize()[1], points.values.getSize()[1]
+        )
 
     def _per_part(self, evaluate) -> np.ndarray:
         """Evaluate a per-boundary-condition function at the points of each contact part."""
@@ -118,11 +131,16 @@ class ContactLaw:
         """residual += B_nu^T (w p) + B_tau^T (w f).  Collective."""
         pressure, friction = self.forces(un, ut)
         point_forces = self.operator.createVecLeft()
-        point_forces.setArray(np.column_stack([pressure, friction]).ravel() * np.repeat(self.weights, 2))
+        point_forces.setArray(
+            np.column_stack([pressure, friction]).ravel() * np.repeat(self.weights, 2)
+        )
         self.operator.multTransposeAdd(point_forces, residual, residual)
 
     def jacobian_rows(self, un, ut) -> sp.csr_matrix:
-        """Owned rows of alpha_C B_nu^T W_closed B_nu + alpha_T B_tau^T W_stick B_tau.  Collective."""
+        """Owned rows of alpha_C B_nu^T W_closed B_nu + alpha_T B_tau^T W_stick B_tau.
+
+        Collective.
+        """
         closed = (un > self.gap) * self.weights * self.alpha_c
         local = self.normal_op.T @ sp.diags(closed) @ self.normal_op
         if self.has_friction:
@@ -149,7 +167,7 @@ class ContactLaw:
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def stored_friction_energy(self, ut) -> float:
-        """alpha_T/2 |u_tau - xi|^2 after the slip update: the friction spring's energy.  Collective."""
+        """alpha_T/2 |u_tau - xi|^2 after the slip update (friction spring energy).  Collective."""
         if not self.has_friction:
             return 0.0
         z = ut - self.slip

@@ -52,7 +52,7 @@ class PointSet:
         return out.getArray().reshape(-1, 2, 2).copy()
 
     def integrate(self, density: np.ndarray, out: PETSc.Vec) -> None:
-        """out = int density . phi_I, i.e. values^T (w * density); density (n_points, 2).  Collective."""
+        """out = int density . phi_I = values^T (w density); density (n_points, 2).  Collective."""
         point_vec = self.values.createVecLeft()
         point_vec.setArray((density * self.weights[:, None]).ravel())
         self.values.multTranspose(point_vec, out)
@@ -106,11 +106,17 @@ def _gradient_matrix(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
 
 
 def _stiffness(gradients: list[sp.csr_matrix], weights: np.ndarray, lam: float, mu: float):
-    """K[2I+a, 2J+b] = int lam d_a phi_I d_b phi_J + mu (delta_ab grad phi_I . grad phi_J + d_b phi_I d_a phi_J)."""
+    """Stiffness K from the scalar gradient operators (n_points x n_nodes each).
+
+    K[2I+a, 2J+b] = int lam d_a phi_I d_b phi_J
+                    + mu (delta_ab grad phi_I . grad phi_J + d_b phi_I d_a phi_J).
+    """
     s = [[gram_matrix(gradients[a], weights, gradients[b]) for b in range(2)] for a in range(2)]
     laplace = s[0][0] + s[1][1]
-    blocks = [[lam * s[a][b] + mu * s[b][a] + (mu * laplace if a == b else 0) for b in range(2)]
-              for a in range(2)]
+    blocks = [
+        [lam * s[a][b] + mu * s[b][a] + (mu * laplace if a == b else 0) for b in range(2)]
+        for a in range(2)
+    ]
     unit = [[sp.csr_matrix(([1.0], ([a], [b])), shape=(2, 2)) for b in range(2)] for a in range(2)]
     return sum(sp.kron(blocks[a][b], unit[a][b], format="csr") for a in range(2) for b in range(2))
 
@@ -134,8 +140,13 @@ class _Builder:
         start, stop = partition.node_ranges[comm.rank], partition.node_ranges[comm.rank + 1]
         self.n_dofs_local = 2 * (stop - start)
         self.timings["mesh"] = time.perf_counter() - tic
-        self.mls = MLS(cloud.coords, scene.support * cloud.spacing, scene.degree, scene.weight,
-                       support_factor=scene.support)
+        self.mls = MLS(
+            cloud.coords,
+            scene.support * cloud.spacing,
+            scene.degree,
+            scene.weight,
+            support_factor=scene.support,
+        )
         self.conditions = []
 
         domain_q, domain_shape = self._domain_points()
@@ -153,21 +164,38 @@ class _Builder:
         tic = time.perf_counter()
         owned = {
             name: owned_rows(comm, local, self.dof_ranges)
-            for name, local in [("mass", mass_local), ("stiffness", stiffness_local),
-                                ("dirichlet", dirichlet_local)]
+            for name, local in [
+                ("mass", mass_local),
+                ("stiffness", stiffness_local),
+                ("dirichlet", dirichlet_local),
+            ]
         }
-        mass, stiffness, dirichlet = (self._square(owned[name])
-                                      for name in ("mass", "stiffness", "dirichlet"))
+        mass, stiffness, dirichlet = (
+            self._square(owned[name]) for name in ("mass", "stiffness", "dirichlet")
+        )
         contact_pattern = owned_rows(comm, pattern_local, self.dof_ranges)
         self.timings["assembly"] += time.perf_counter() - tic
         conditions = np.concatenate(self.conditions) if self.conditions else np.ones(1)
         return Discretization(
-            comm=comm, cloud=cloud, partition=partition, node_range=(start, stop),
-            n_nodes=n, mass=mass, stiffness=stiffness, dirichlet=dirichlet, owned=owned,
-            contact_pattern=contact_pattern, domain=domain, nodes=nodes,
-            boundary=boundary, contact=contact, timings=self.timings,
-            condition_range=(comm.allreduce(conditions.min(), op=MPI.MIN),
-                             comm.allreduce(conditions.max(), op=MPI.MAX)),
+            comm=comm,
+            cloud=cloud,
+            partition=partition,
+            node_range=(start, stop),
+            n_nodes=n,
+            mass=mass,
+            stiffness=stiffness,
+            dirichlet=dirichlet,
+            owned=owned,
+            contact_pattern=contact_pattern,
+            domain=domain,
+            nodes=nodes,
+            boundary=boundary,
+            contact=contact,
+            timings=self.timings,
+            condition_range=(
+                comm.allreduce(conditions.min(), op=MPI.MIN),
+                comm.allreduce(conditions.max(), op=MPI.MAX),
+            ),
         )
 
     def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
@@ -187,7 +215,10 @@ class _Builder:
     def _domain_points(self) -> tuple[Quadrature, ShapeValues]:
         rank, cloud, part = self.comm.rank, self.cloud, self.partition
         quadrature = cell_quadrature(
-            cloud.coords, cloud.quads, cloud.triangles, self.scene.quadrature,
+            cloud.coords,
+            cloud.quads,
+            cloud.triangles,
+            self.scene.quadrature,
             quad_ids=np.flatnonzero(part.quad_owner == rank),
             triangle_ids=np.flatnonzero(part.triangle_owner == rank),
         )
@@ -203,8 +234,14 @@ class _Builder:
         grad_mat = None
         if gradients:
             grad_mat = petsc_matrix(self.comm, _gradient_matrix(shape, n), self.n_dofs_local, 2 * n)
-        return PointSet(points=quadrature.points, weights=quadrature.weights,
-                        normals=quadrature.normals, values=values_mat, gradients=grad_mat, **extra)
+        return PointSet(
+            points=quadrature.points,
+            weights=quadrature.weights,
+            normals=quadrature.normals,
+            values=values_mat,
+            gradients=grad_mat,
+            **extra,
+        )
 
     def _boundary_quadrature(self, part_ids: list[int]) -> tuple[Quadrature, np.ndarray]:
         """This rank's Gauss points on segments of the given parts, and their global rows."""
@@ -213,8 +250,9 @@ class _Builder:
         # global, rank-independent numbering of the selected segments (for output rows)
         global_index = np.cumsum(on_parts) - 1
         mine = np.flatnonzero(on_parts & (part.segment_owner == self.comm.rank))
-        quadrature = segment_quadrature(cloud.coords, cloud.segments, self.scene.quadrature,
-                                        segment_ids=mine)
+        quadrature = segment_quadrature(
+            cloud.coords, cloud.segments, self.scene.quadrature, segment_ids=mine
+        )
         n_gauss = self.scene.quadrature
         rows = global_index[quadrature.cell] * n_gauss + np.arange(len(quadrature.cell)) % n_gauss
         return quadrature, rows
@@ -235,7 +273,9 @@ class _Builder:
             boundary[name] = self._point_set(quadrature, shape)
             if bc.kind == "dirichlet":
                 phi = shape_matrix(shape, n)
-                dirichlet_local = dirichlet_local + interleave(gram_matrix(phi, quadrature.weights, phi))
+                dirichlet_local = dirichlet_local + interleave(
+                    gram_matrix(phi, quadrature.weights, phi)
+                )
             self.timings["assembly"] += time.perf_counter() - tic
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
@@ -257,10 +297,12 @@ class _Builder:
         points = self.cloud.coords[start:stop]
         shape = self._shape(points, gradients=True)
         tic = time.perf_counter()
-        quadrature = Quadrature(points=points, weights=np.ones(len(points)),
-                                cell=np.arange(start, stop), normals=None)
-        nodes = self._point_set(quadrature, shape, gradients=True,
-                                rows=self.cloud.original_index[start:stop])
+        quadrature = Quadrature(
+            points=points, weights=np.ones(len(points)), cell=np.arange(start, stop), normals=None
+        )
+        nodes = self._point_set(
+            quadrature, shape, gradients=True, rows=self.cloud.original_index[start:stop]
+        )
         self.timings["assembly"] += time.perf_counter() - tic
         return nodes
 

@@ -55,8 +55,11 @@ class Progress:
             return
         elapsed = time.perf_counter() - self.start
         eta = elapsed / n * (self.n_steps - n)
-        print(f"  step {n:>5}/{self.n_steps}  t = {t:<10.4g} newton {newton:>2}  "
-              f"elapsed {elapsed:7.2f} s  eta {eta:7.2f} s", flush=True)
+        print(
+            f"  step {n:>5}/{self.n_steps}  t = {t:<10.4g} newton {newton:>2}  "
+            f"elapsed {elapsed:7.2f} s  eta {eta:7.2f} s",
+            flush=True,
+        )
 
 
 def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
@@ -71,8 +74,10 @@ def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
     sxy = 2 * scene.mu * strain[:, 0, 1]
     von_mises = np.sqrt(0.5 * ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2) + 3 * sxy**2)
     node_fields = {
-        "displacement": nodes.evaluate(state.u), "velocity": nodes.evaluate(state.v),
-        "acceleration": nodes.evaluate(state.a), "von_mises": von_mises,
+        "displacement": nodes.evaluate(state.u),
+        "velocity": nodes.evaluate(state.v),
+        "acceleration": nodes.evaluate(state.a),
+        "von_mises": von_mises,
     }
     contact_fields = {}
     if sim.law is not None:
@@ -81,8 +86,10 @@ def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
         pressure, friction = law.forces(un, ut)
         status = law.status(un, ut)
         contact_fields = {
-            "gap": law.gap - un, "normal_pressure": pressure,
-            "tangential_traction": friction, "status": status,
+            "gap": law.gap - un,
+            "normal_pressure": pressure,
+            "tangential_traction": friction,
+            "status": status,
         }
     return node_fields, contact_fields
 
@@ -90,19 +97,27 @@ def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
 def _writer(comm, sim: Simulation, out_dir: Path, metadata: dict) -> ResultWriter:
     disc = sim.disc
     contact = disc.contact
-    n_contact = 0 if contact is None else comm.allreduce(
-        int(contact.rows.max()) + 1 if len(contact.rows) else 0, op=MPI.MAX)
+    n_contact = (
+        0
+        if contact is None
+        else comm.allreduce(int(contact.rows.max()) + 1 if len(contact.rows) else 0, op=MPI.MAX)
+    )
     return ResultWriter(
-        comm, out_dir,
-        node_coords=disc.nodes.points, node_rows=disc.nodes.rows, n_nodes=disc.n_nodes,
+        comm,
+        out_dir,
+        node_coords=disc.nodes.points,
+        node_rows=disc.nodes.rows,
+        n_nodes=disc.n_nodes,
         contact_coords=np.zeros((0, 2)) if contact is None else contact.points,
         contact_rows=np.zeros(0, dtype=np.int64) if contact is None else contact.rows,
-        n_contact=n_contact, metadata=metadata,
+        n_contact=n_contact,
+        metadata=metadata,
     )
 
 
-def run_scene(comm, scene, out: str | None = None, quiet: bool = False,
-              fail_at_step: int | None = None) -> dict:
+def run_scene(
+    comm, scene, out: str | None = None, quiet: bool = False, fail_at_step: int | None = None
+) -> dict:
     """Run ``scene`` on ``comm``; write result.h5/.xdmf and summary.json.  Collective.
 
     Returns the summary dict (the contents of summary.json).
@@ -113,8 +128,10 @@ def run_scene(comm, scene, out: str | None = None, quiet: bool = False,
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
     disc = build_discretization(comm, scene)
     sim = Simulation(comm, scene, disc)
-    say(f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "
-        f"degree {scene.degree}, {'contact' if sim.law else 'no contact'}")
+    say(
+        f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "
+        f"degree {scene.degree}, {'contact' if sim.law else 'no contact'}"
+    )
     metadata = {"params": scene.params, "version": __version__, "mpi_ranks": comm.size}
     tic = time.perf_counter()
     writer = _writer(comm, sim, out_dir, metadata)
@@ -160,14 +177,21 @@ def _summary(comm, scene, disc, sim, start, errors=None, failed=False) -> dict:
     timings["assembly"] = disc.timings["assembly"] + sim.timings["assembly"]
     timings.update(solve=sim.timings["solve"], output=sim.timings["output"])
     summary = {
-        "scene": scene.name, "params": scene.params, "mpi_ranks": comm.size,
-        "n_nodes": disc.n_nodes, "n_dofs": disc.n_dofs, "n_steps": scene.n_steps,
-        "steps_done": len(sim.history) - 1, "timings": timings,
-        "newton_iterations": sim.newton_iterations, "linear_iterations": sim.linear_iterations,
+        "scene": scene.name,
+        "params": scene.params,
+        "mpi_ranks": comm.size,
+        "n_nodes": disc.n_nodes,
+        "n_dofs": disc.n_dofs,
+        "n_steps": scene.n_steps,
+        "steps_done": len(sim.history) - 1,
+        "timings": timings,
+        "newton_iterations": sim.newton_iterations,
+        "linear_iterations": sim.linear_iterations,
         "factorizations": sim.solver.factorizations,
         "max_newton_per_step": max((r["newton_iterations"] for r in sim.history), default=0),
         "mls_condition": {"min": disc.condition_range[0], "max": disc.condition_range[1]},
-        "version": __version__, "status": "failed" if failed else "ok",
+        "version": __version__,
+        "status": "failed" if failed else "ok",
     }
     if errors is not None:
         summary["errors"] = errors
@@ -186,9 +210,11 @@ def _write_summary(comm, out_dir: Path, summary: dict) -> None:
 def print_summary(summary: dict, out_dir: Path, file=sys.stdout) -> None:
     """The final table on rank 0."""
     t = summary["timings"]
-    lines = [f"done: {summary['n_steps']} steps, {summary['newton_iterations']} Newton / "
-             f"{summary['linear_iterations']} linear iterations, "
-             f"{summary['factorizations']} factorization(s)"]
+    lines = [
+        f"done: {summary['n_steps']} steps, {summary['newton_iterations']} Newton / "
+        f"{summary['linear_iterations']} linear iterations, "
+        f"{summary['factorizations']} factorization(s)"
+    ]
     if "errors" in summary:
         e = summary["errors"]
         lines.append(f"errors at T: L2 {e['l2_rel']:.3e}   H1 {e['h1_rel']:.3e}  (relative)")

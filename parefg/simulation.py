@@ -43,8 +43,11 @@ class Simulation:
     def _a_const(self) -> PETSc.Mat:
         """A_const = c_M M + K + alpha_D G_D, with the Gamma_C pattern reserved."""
         owned = self.disc.owned
-        matrix = (self.scheme.mass_coefficient * owned["mass"] + owned["stiffness"]
-                  + self.scene.alpha_dirichlet * owned["dirichlet"])
+        matrix = (
+            self.scheme.mass_coefficient * owned["mass"]
+            + owned["stiffness"]
+            + self.scene.alpha_dirichlet * owned["dirichlet"]
+        )
         matrix = with_pattern(matrix.tocsr(), self.disc.contact_pattern)
         n_local = matrix.shape[0]
         a_const = petsc_matrix(self.comm, matrix, n_local, self.disc.n_dofs, block_size=2)
@@ -98,7 +101,9 @@ class Simulation:
             self._mass_ksp = ksp
         self._mass_ksp.solve(rhs, out)
         if self._mass_ksp.getConvergedReason() < 0:
-            raise SolverError(f"mass-matrix solve failed: KSP reason {self._mass_ksp.getConvergedReason()}")
+            raise SolverError(
+                f"mass-matrix solve failed: KSP reason {self._mass_ksp.getConvergedReason()}"
+            )
 
     def initial_state(self) -> State:
         """u_0, v_0 projected; a_0 from M a_0 = F_0 - (K + alpha_D G_D) u_0 - contact(u_0)."""
@@ -133,14 +138,19 @@ class Simulation:
         contact_energy = 0.0
         if self.law is not None:
             contact_energy = self.law.normal_energy(self.law.kinematics(state.u)[0])
-        self.history = [{
-            "time": 0.0, "newton_iterations": 0, "linear_iterations": 0,
-            "active_contact_points": 0,
-            "kinetic_energy": 0.5 * _quadratic(self.disc.mass, state.v),
-            "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, state.u),
-            "penalty_energy": dirichlet_energy + contact_energy,
-            "dissipated_energy": 0.0, "external_work": 0.0,
-        }]
+        self.history = [
+            {
+                "time": 0.0,
+                "newton_iterations": 0,
+                "linear_iterations": 0,
+                "active_contact_points": 0,
+                "kinetic_energy": 0.5 * _quadratic(self.disc.mass, state.v),
+                "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, state.u),
+                "penalty_energy": dirichlet_energy + contact_energy,
+                "dissipated_energy": 0.0,
+                "external_work": 0.0,
+            }
+        ]
         return state
 
     # -- the loop ------------------------------------------------------------------------
@@ -189,14 +199,19 @@ class Simulation:
         forces = self.loads(t, dirichlet=False)
         work = previous.get("external_work", 0.0) + anchor_work
         work += self._load_work(old.u, new.u, forces)
-        self.history.append({
-            "time": t, "newton_iterations": newton, "linear_iterations": linear,
-            "active_contact_points": active,
-            "kinetic_energy": 0.5 * _quadratic(self.disc.mass, new.v),
-            "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, new.u),
-            "penalty_energy": dirichlet_energy + contact_energy,
-            "dissipated_energy": dissipated, "external_work": work,
-        })
+        self.history.append(
+            {
+                "time": t,
+                "newton_iterations": newton,
+                "linear_iterations": linear,
+                "active_contact_points": active,
+                "kinetic_energy": 0.5 * _quadratic(self.disc.mass, new.v),
+                "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, new.u),
+                "penalty_energy": dirichlet_energy + contact_energy,
+                "dissipated_energy": dissipated,
+                "external_work": work,
+            }
+        )
 
     def _load_work(self, u_old, u_new, forces) -> float:
         """Trapezoidal work of F over the step: (F_{n-1} + F_n)/2 . (u_n - u_{n-1})."""
@@ -221,8 +236,9 @@ class Simulation:
             ubar = self.scene.boundaries[name].value(x, y, t).T
             diff = points.evaluate(u) - ubar
             energy += np.dot(points.weights, np.sum(diff**2, axis=1))
-            old_ubar, old_diff = previous.get(name, (self.scene.boundaries[name].value(
-                x, y, t - self.scheme.k).T, diff))
+            old_ubar, old_diff = previous.get(
+                name, (self.scene.boundaries[name].value(x, y, t - self.scheme.k).T, diff)
+            )
             mean_force = 0.5 * (diff + old_diff)
             work -= np.dot(points.weights, np.sum(mean_force * (ubar - old_ubar), axis=1))
             current[name] = (ubar, diff)

@@ -28,7 +28,7 @@ class State:
 
 
 class NewmarkScheme:
-    """Newmark(beta, gamma): predictor ut, vt; update a = (u - ut)/(beta k^2), v = vt + gamma k a."""
+    """Newmark(beta, gamma): predictor ut, vt; a = (u - ut)/(beta k^2), v = vt + gamma k a."""
 
     name = "newmark"
     dynamic = True
@@ -93,12 +93,14 @@ def relative_errors(comm, disc, exact, u: PETSc.Vec, t: float) -> dict[str, floa
     grads = disc.domain.evaluate_gradient(u)  # (n_q, 2, 2)
     u_exact = exact.u(points[:, 0], points[:, 1], t).T  # (n_q, 2)
     g_exact = np.moveaxis(exact.grad(points[:, 0], points[:, 1], t), -1, 0)  # (n_q, 2, 2)
-    sums = np.array([
-        np.dot(weights, np.sum((values - u_exact) ** 2, axis=1)),
-        np.dot(weights, np.sum(u_exact**2, axis=1)),
-        np.dot(weights, np.sum((grads - g_exact) ** 2, axis=(1, 2))),
-        np.dot(weights, np.sum(g_exact**2, axis=(1, 2))),
-    ])
+    sums = np.array(
+        [
+            np.dot(weights, np.sum((values - u_exact) ** 2, axis=1)),
+            np.dot(weights, np.sum(u_exact**2, axis=1)),
+            np.dot(weights, np.sum((grads - g_exact) ** 2, axis=(1, 2))),
+            np.dot(weights, np.sum(g_exact**2, axis=(1, 2))),
+        ]
+    )
     sums = comm.allreduce(sums)
     return {
         "l2_rel": float(np.sqrt(sums[0] / sums[1])) if sums[1] > 0 else float(np.sqrt(sums[0])),
