@@ -1,0 +1,153 @@
+"""``parefg sweep``: run a grid of cases, tabulate error against wall time (SPEC 8).
+
+Each ``--vary section.key=v1,v2,...`` adds an axis; the cases are their product.  Rank 0
+writes sweep.csv, error_vs_time.png (H1 error against run time, one curve per MLS
+degree, points labelled by h and dt) and prints a table with the rates fitted from every
+axis that varies h or dt (np.polyfit of log error against log h or log dt).
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+from pathlib import Path
+
+import numpy as np
+
+from parefg.errors import InputError
+from parefg.run import choose_output_dir, run_scene
+from parefg.scene import load_scene
+
+RATE_KEYS = {"discretization.h": "h", "time.dt": "dt"}
+
+
+def parse_axes(vary: list[str]) -> list[tuple[str, list[str]]]:
+    """'section.key=v1,v2' strings -> [(key, [v1, v2])]; InputError on bad syntax."""
+    axes = []
+    for item in vary:
+        key, sep, values = item.partition("=")
+        if not sep or "." not in key or not values:
+            raise InputError(f"--vary {item!r}: expected section.key=v1,v2,...")
+        axes.append((key.strip(), [v.strip() for v in values.split(",") if v.strip()]))
+    return axes
+
+
+def run_sweep(comm, scene_source: str, vary: list[str], sets: list[str], out: str | None) -> list:
+    """Run every case of the grid; return the rows.  Collective."""
+    axes = parse_axes(vary)
+    cases = list(itertools.product(*[values for _, values in axes]))
+    # validate every case before running any (bad input: exit 2, nothing run)
+    scenes = [load_scene(scene_source, [*sets, *_overrides(axes, case)]) for case in cases]
+    out_dir = choose_output_dir(comm, f"sweep-{scenes[0].name}", out)
+    rows = []
+    for i, (case, scene) in enumerate(zip(cases, scenes, strict=True)):
+        summary = run_scene(comm, scene, out=str(out_dir / f"case{i:03d}"), quiet=True)
+        row = _row(axes, case, scene, summary)
+        rows.append(row)
+        if comm.rank == 0:
+            print(f"  case {i + 1}/{len(cases)}: " + _format_row(row), flush=True)
+    if comm.rank == 0:
+        _write_csv(out_dir / "sweep.csv", rows)
+        _plot(out_dir / "error_vs_time.png", rows)
+        print(rate_table(rows, [key for key, _ in axes]))
+        print(f"sweep: {out_dir}/sweep.csv, error_vs_time.png")
+    return rows
+
+
+def _overrides(axes, case) -> list[str]:
+    return [f"{key}={value}" for (key, _), value in zip(axes, case, strict=True)]
+
+
+def _row(axes, case, scene, summary) -> dict:
+    errors = summary.get("errors", {})
+    row = {key: value for (key, _), value in zip(axes, case, strict=True)}
+    row.update(
+        h=scene.h,
+        dt=scene.dt,
+        degree=scene.degree,
+        n_dofs=summary["n_dofs"],
+        l2_rel=errors.get("l2_rel", np.nan),
+        h1_rel=errors.get("h1_rel", np.nan),
+        time=summary["timings"]["total"],
+        solve=summary["timings"]["solve"],
+        newton=summary["newton_iterations"],
+        factorizations=summary["factorizations"],
+    )
+    return row
+
+
+def _format_row(row: dict) -> str:
+    return (
+        f"h {row['h']:<8.4g} dt {row['dt']:<8.4g} m {row['degree']}  dofs {row['n_dofs']:>7}  "
+        f"L2 {row['l2_rel']:.3e}  H1 {row['h1_rel']:.3e}  time {row['time']:.2f} s"
+    )
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def fitted_rate(x, errors) -> float:
+    """Slope of log(error) against log(x) (least squares); nan with fewer than 2 points."""
+    x, errors = np.asarray(x, float), np.asarray(errors, float)
+    ok = np.isfinite(errors) & (errors > 0)
+    if np.count_nonzero(ok) < 2 or np.ptp(x[ok]) == 0:
+        return float("nan")
+    return float(np.polyfit(np.log(x[ok]), np.log(errors[ok]), 1)[0])
+
+
+def rate_table(rows: list[dict], varied: list[str]) -> str:
+    """Markdown table: one line per case, then the rates fitted along h and dt."""
+    lines = ["| m | h | dt | DOFs | L2 rel | H1 rel | time [s] | Newton |", "|---" * 8 + "|"]
+    lines += [
+        f"| {r['degree']} | {r['h']:.4g} | {r['dt']:.4g} | {r['n_dofs']} | {r['l2_rel']:.3e} | "
+        f"{r['h1_rel']:.3e} | {r['time']:.2f} | {r['newton']} |"
+        for r in rows
+    ]
+    for key, column in RATE_KEYS.items():
+        if key not in varied:
+            continue
+        others = [k for k in varied if k != key]
+        groups: dict[tuple, list[dict]] = {}
+        for r in rows:
+            groups.setdefault(tuple(r[k] for k in others), []).append(r)
+        for group_key, group in groups.items():
+            x = [r[column] for r in group]
+            label = ", ".join(f"{k}={v}" for k, v in zip(others, group_key, strict=True)) or "all"
+            lines.append(
+                f"\nrate in {column} ({label}): L2 {fitted_rate(x, [r['l2_rel'] for r in group]):.2f}"
+                f", H1 {fitted_rate(x, [r['h1_rel'] for r in group]):.2f}"
+            )
+    return "\n".join(lines)
+
+
+def _plot(path: Path, rows: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for degree in sorted({r["degree"] for r in rows}):
+        group = sorted((r for r in rows if r["degree"] == degree), key=lambda r: r["time"])
+        ax.loglog(
+            [r["time"] for r in group], [r["h1_rel"] for r in group], "o-", label=f"m = {degree}"
+        )
+        for r in group:
+            ax.annotate(
+                f"h={r['h']:.3g}\ndt={r['dt']:.3g}",
+                (r["time"], r["h1_rel"]),
+                fontsize=6,
+                textcoords="offset points",
+                xytext=(3, 3),
+            )
+    ax.set_xlabel("wall time [s]")
+    ax.set_ylabel("relative H1 error at T")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
