@@ -117,10 +117,9 @@ def rate_table(rows: list[dict], varied: list[str]) -> str:
         for group_key, group in groups.items():
             x = [r[column] for r in group]
             label = ", ".join(f"{k}={v}" for k, v in zip(others, group_key, strict=True)) or "all"
-            lines.append(
-                f"\nrate in {column} ({label}): L2 {fitted_rate(x, [r['l2_rel'] for r in group]):.2f}"
-                f", H1 {fitted_rate(x, [r['h1_rel'] for r in group]):.2f}"
-            )
+            l2_rate = fitted_rate(x, [r["l2_rel"] for r in group])
+            h1_rate = fitted_rate(x, [r["h1_rel"] for r in group])
+            lines.append(f"\nrate in {column} ({label}): L2 {l2_rate:.2f}, H1 {h1_rate:.2f}")
     return "\n".join(lines)
 
 
