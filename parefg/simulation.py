@@ -16,7 +16,7 @@ from petsc4py import PETSc
 from parefg.assembly import petsc_matrix, with_pattern
 from parefg.contact import ContactLaw
 from parefg.errors import SolverError
-from parefg.solver import ContactStepSolver, LinearStepSolver
+from parefg.solver import ContactStepSolver, LinearStepSolver, configure_linear_solver
 from parefg.timestepping import State, make_scheme, relative_errors
 
 
@@ -94,9 +94,9 @@ class Simulation:
             ksp = PETSc.KSP().create(self.comm)
             ksp.setOptionsPrefix("mass_")
             ksp.setOperators(self.disc.mass)
-            ksp.setType(PETSc.KSP.Type.CG)
-            ksp.getPC().setType(PETSc.PC.Type.JACOBI)
-            ksp.setTolerances(rtol=1e-13, atol=1e-50, max_it=5000)
+            # once per run (u_0, v_0 projections and a_0): a direct factorization beats CG
+            # on the ill-conditioned MLS mass matrix; -mass_ksp_type/-mass_pc_type override
+            configure_linear_solver(ksp)
             ksp.setFromOptions()
             self._mass_ksp = ksp
         self._mass_ksp.solve(rhs, out)
