@@ -52,6 +52,14 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", help="output directory (must not exist or be empty)")
     run.add_argument("--quiet", action="store_true", help="no progress output")
     run.add_argument("--fail-at-step", type=int, help="testing: fail on purpose at this step")
+    run.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=0,
+        metavar="N",
+        help="write DIR/checkpoint.h5 (u, v, a, slip, step) every N steps",
+    )
+    run.add_argument("--restart", metavar="FILE", help="continue from a checkpoint file")
     sweep = sub.add_parser("sweep", help="run a grid of cases; error-vs-time table, CSV and PNG")
     sweep.add_argument("scene")
     sweep.add_argument("--vary", action="append", required=True, metavar="SECTION.KEY=V1,V2,...")

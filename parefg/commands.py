@@ -12,7 +12,15 @@ def run(comm, args) -> int:
     from parefg.scene import load_scene
 
     scene = load_scene(args.scene, args.set)
-    run_scene(comm, scene, out=args.out, quiet=args.quiet, fail_at_step=args.fail_at_step)
+    run_scene(
+        comm,
+        scene,
+        out=args.out,
+        quiet=args.quiet,
+        fail_at_step=args.fail_at_step,
+        checkpoint_every=args.checkpoint_every,
+        restart=args.restart,
+    )
     return 0
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from mpi4py import MPI
 
 from parefg import __version__
+from parefg.checkpoint import read_checkpoint, write_checkpoint
 from parefg.errors import InputError, SolverError
 from parefg.operators import build_discretization
 from parefg.output import ResultWriter
@@ -116,9 +117,18 @@ def _writer(comm, sim: Simulation, out_dir: Path, metadata: dict) -> ResultWrite
 
 
 def run_scene(
-    comm, scene, out: str | None = None, quiet: bool = False, fail_at_step: int | None = None
+    comm,
+    scene,
+    out: str | None = None,
+    quiet: bool = False,
+    fail_at_step: int | None = None,
+    checkpoint_every: int = 0,
+    restart: str | None = None,
 ) -> dict:
     """Run ``scene`` on ``comm``; write result.h5/.xdmf and summary.json.  Collective.
+
+    ``checkpoint_every`` > 0 writes DIR/checkpoint.h5 every that many steps; ``restart``
+    continues from such a file (its step + 1 onwards) instead of the initial state.
 
     Returns the summary dict (the contents of summary.json).
     """
@@ -137,11 +147,16 @@ def run_scene(
     writer = _writer(comm, sim, out_dir, metadata)
     sim.timings["output"] += time.perf_counter() - tic
 
-    state = sim.start()
+    state, first = sim.start(), 1
+    if restart is not None:
+        state, done, last_row = read_checkpoint(comm, Path(restart), sim)
+        state, first = sim.resume(state, done, last_row), done + 1
+    else:
+        writer.append_history(sim.history[0])  # the t = 0 row
     progress = Progress(comm, scene.n_steps, quiet)
     summary = _summary(comm, scene, disc, sim, start)
     try:
-        for n in range(1, scene.n_steps + 1):
+        for n in range(first, scene.n_steps + 1):
             if fail_at_step is not None and n == fail_at_step:
                 raise SolverError(f"injected failure at step {n} (--fail-at-step)")
             state = sim.step(state, n)
@@ -151,6 +166,8 @@ def run_scene(
             if _is_output_step(n, scene):
                 node_fields, contact_fields = _output_fields(sim, state)
                 writer.write_step(n, row["time"], node_fields, contact_fields)
+            if checkpoint_every > 0 and n % checkpoint_every == 0:
+                write_checkpoint(comm, out_dir / "checkpoint.h5", sim, state, n)
             sim.timings["output"] += time.perf_counter() - tic
             progress.update(n, row["time"], row["newton_iterations"])
     except SolverError:
@@ -183,7 +200,7 @@ def _summary(comm, scene, disc, sim, start, errors=None, failed=False) -> dict:
         "n_nodes": disc.n_nodes,
         "n_dofs": disc.n_dofs,
         "n_steps": scene.n_steps,
-        "steps_done": len(sim.history) - 1,
+        "steps_done": int(round(sim.history[-1]["time"] / scene.dt)),
         "timings": timings,
         "newton_iterations": sim.newton_iterations,
         "linear_iterations": sim.linear_iterations,

@@ -153,6 +153,15 @@ class Simulation:
         ]
         return state
 
+    def resume(self, state: State, step: int, last_row: dict) -> State:
+        """Continue from a checkpointed state after ``step`` (see parefg.checkpoint)."""
+        t = step * self.scheme.k
+        self._last_forces = self.loads(t, dirichlet=False)
+        self._dirichlet_previous = {}
+        self._dirichlet_terms(state.u, t)
+        self.history = [dict(last_row)]
+        return state
+
     # -- the loop ------------------------------------------------------------------------
     def step(self, state: State, n: int) -> State:
         """Advance from t_{n-1} to t_n = n k."""
