@@ -15,15 +15,24 @@ from parefg import __version__
 from parefg.errors import InputError, SolverError
 
 
+def _is_value(arg: str) -> bool:
+    """A PETSc option value: anything not starting with '-', or a (negative) number."""
+    try:
+        float(arg)
+        return True
+    except ValueError:
+        return not arg.startswith("-")
+
+
 def _split_petsc_options(argv: list[str]) -> tuple[list[str], list[str]]:
     """Separate PETSc options (``-name [value]``) from parefg's own arguments."""
     ours, petsc = [], []
     i = 0
     while i < len(argv):
         arg = argv[i]
-        if arg.startswith("-") and not arg.startswith("--") and len(arg) > 2 and arg != "-h":
+        if arg.startswith("-") and not arg.startswith("--") and len(arg) > 2 and not _is_value(arg):
             petsc.append(arg)
-            if i + 1 < len(argv) and not argv[i + 1].startswith("-"):
+            if i + 1 < len(argv) and _is_value(argv[i + 1]):
                 petsc.append(argv[i + 1])
                 i += 1
         else:

@@ -46,6 +46,8 @@ class ContactLaw:
         self.gap = self._per_part(lambda bc, x, y, n: bc.gap(x, y))
         self.bound = np.zeros(len(self.weights))  # g_n at the points, set by set_time
         self.slip = np.zeros(len(self.weights))  # xi, accumulated slip
+        self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
+        self.step_friction = np.zeros(len(self.weights))
         # rotated value operator: rows 2q = nu_q . u_h(x_q), 2q + 1 = tau_q . u_h(x_q)
         values = _scipy_from_petsc(points.values)
         n_points = len(normals)
@@ -188,11 +190,17 @@ class ContactLaw:
             slope += np.dot(self.weights, self.alpha_t * dt**2 * ~self._sliding(ut_s))
         return tuple(self.comm.allreduce(np.array([value, slope]), op=MPI.SUM))
 
-    def update_slip(self, ut) -> float:
-        """Return mapping xi_n = u_tau - clip(u_tau - xi, -g/alpha_T, g/alpha_T).
+    def end_step(self, un, ut) -> float:
+        """Record the step's status and friction force, then update the slip.
 
-        Returns this step's frictional dissipation sum_q w_q g_q |xi_n - xi_{n-1}|.  Collective.
+        The status is taken with the slip the step was solved with: after the return
+        mapping a sliding point sits exactly at |alpha_T (u_tau - xi)| = g, where round-off
+        would decide between stick and slip.  Then the return mapping
+        xi_n = u_tau - clip(u_tau - xi, -g/alpha_T, g/alpha_T).  Returns the step's
+        frictional dissipation sum_q w_q g_q |xi_n - xi_{n-1}|.  Collective.
         """
+        self.step_status = self.status(un, ut)
+        self.step_friction = self.forces(un, ut)[1]
         if not self.has_friction:
             return 0.0
         z = ut - self.slip

@@ -201,7 +201,7 @@ class Simulation:
         active, contact_energy = 0, 0.0
         if self.law is not None:
             un, ut = self.law.kinematics(new.u)
-            dissipated += self.law.update_slip(ut)
+            dissipated += self.law.end_step(un, ut)
             active = self.comm.allreduce(int(np.count_nonzero(un > self.law.gap)))
             contact_energy = self.law.normal_energy(un) + self.law.stored_friction_energy(ut)
         dirichlet_energy, anchor_work = self._dirichlet_terms(new.u, t)
