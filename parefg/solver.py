@@ -94,7 +94,7 @@ class ContactStepSolver:
             options.setValue("snes_linesearch_type", "basic")
         snes.setLineSearchPreCheck(self._exact_line_search)
         snes.setConvergenceTest(self._converged)
-        snes.setTolerances(rtol=1e-12, atol=1e-50, max_it=200)
+        snes.setTolerances(rtol=1e-12, atol=1e-50, stol=1e-13, max_it=200)
         configure_linear_solver(snes.getKSP())
         snes.setFromOptions()
         return snes
@@ -167,9 +167,13 @@ class ContactStepSolver:
             return Reason.CONVERGED_FNORM_ABS if fnorm == 0.0 else Reason.ITERATING
         if self._exact_piece:  # the full step solved the (affine) residual on its piece
             return Reason.CONVERGED_SNORM_RELATIVE
+        rtol, atol, stol, max_it = snes.getTolerances()
+        if ynorm <= stol * xnorm:
+            # the update is at round-off: the iterate sits on a kink (e.g. u_nu = s to
+            # round-off), where both pieces give the same (continuous) residual
+            return Reason.CONVERGED_SNORM_RELATIVE
         settled = np.array_equal(self._last_active, self._step_active)
         settled = self.comm.allreduce(not settled) == 0
-        rtol, atol, _, max_it = snes.getTolerances()
         if settled and fnorm <= atol:
             return Reason.CONVERGED_FNORM_ABS
         if settled and fnorm <= rtol * self._fnorm0:
