@@ -15,6 +15,8 @@ vectorized numpy function.
 
 import ast
 import math
+import sys
+import warnings
 from collections.abc import Callable, Sequence
 from functools import reduce
 
@@ -111,15 +113,30 @@ def parse_expression(value: int | float | str, key: str) -> sympy.Expr:
     if len(text) > MAX_LENGTH:
         raise InputError(f"{key}: expression of {len(text)} characters (at most {MAX_LENGTH})")
     try:
-        tree = ast.parse(text, mode="eval")
+        with warnings.catch_warnings():  # "1x" warns (invalid decimal literal) before failing
+            warnings.simplefilter("ignore")
+            tree = ast.parse(text, mode="eval")
     except (SyntaxError, ValueError, RecursionError, MemoryError) as exc:
         reason = getattr(exc, "msg", None) or str(exc).splitlines()[0]
         raise InputError(f"{key}: {_shorten(text)} is not a valid expression ({reason})") from None
     expr = _Translator(text, key).build(tree.body, depth=1)
-    # Division by zero, sqrt(-1), log(0), ... leave sympy's non-real or infinite atoms.
-    if expr.has(sympy.I, sympy.zoo, sympy.nan, sympy.oo, -sympy.oo):
+    if not _is_finite_real(expr):
         raise InputError(f"{key}: {_shorten(text)} is not a finite real expression")
     return expr
+
+
+def _is_finite_real(expr: sympy.Expr) -> bool:
+    """False for what numpy could not evaluate to a finite real number.
+
+    Division by zero, sqrt(-1), log(0), ... leave sympy's non-real or infinite atoms;
+    (-8)**(1/3) = 2 (-1)**(1/3) is complex without containing I; 1e300**64 is a finite
+    sympy Float but overflows a double.
+    """
+    if expr.has(sympy.I, sympy.zoo, sympy.nan, sympy.oo, -sympy.oo):
+        return False
+    if any(abs(number) > sys.float_info.max for number in expr.atoms(sympy.Number)):
+        return False
+    return expr.is_extended_real is not False
 
 
 class _Translator:
@@ -204,7 +221,12 @@ class _Translator:
             counts = f"{arities[0]} to {arities[-1]}" if many else " or ".join(map(str, arities))
             plural = "" if counts == "1" else "s"
             raise self.reject(node, f"{node.func.id} takes {counts} argument{plural}")
-        return function(*(self.build(arg, depth + 1) for arg in node.args))
+        args = [self.build(arg, depth + 1) for arg in node.args]
+        # Checked first: sympy's Min/Max raise ValueError on complex or infinite arguments.
+        for arg, arg_node in zip(args, node.args, strict=True):
+            if not _is_finite_real(arg):
+                raise self.reject(arg_node, "not a finite real expression")
+        return function(*args)
 
     _HANDLERS: dict[type, Callable[..., sympy.Expr]] = {
         ast.Constant: constant,

@@ -17,6 +17,7 @@ the effective scene again gives the same scene.
 """
 
 import copy
+import math
 import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -360,6 +361,7 @@ DEFAULT_SUPPORT = {1: 2.0, 2: 3.2, 3: 4.0}
 DEFAULT_QUADRATURE = {1: 3, 2: 5, 3: 7}
 PENALTY_KINDS = ("dirichlet", "contact", "friction")
 STEP_TOLERANCE = 1e-9  # relative distance of T / dt from an integer
+MAX_STEPS = 10**9  # beyond this T / dt is a typo, and is no longer checked as an integer
 
 _REQUIRED = object()
 
@@ -368,6 +370,11 @@ def _show(value) -> str:
     """A value as it appears in an error message: repr, one line, at most 60 characters."""
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _name(key: str) -> str:
+    """A key as it appears in an error message: as is if printable, else its repr (one line)."""
+    return key if key.isprintable() and len(key) <= 60 else _show(key)
 
 
 class _Table:
@@ -382,7 +389,7 @@ class _Table:
         self.allowed: list[str] = []
 
     def fail(self, key: str, value, why: str) -> InputError:
-        return InputError(f"{self.where}: {self.path}.{key} = {_show(value)}: {why}")
+        return InputError(f"{self.where}: {self.path}.{_name(key)} = {_show(value)}: {why}")
 
     def take(self, key: str, convert, default=_REQUIRED, check=None):
         """Convert and check ``key``; a missing key gets ``default`` (None: stays absent)."""
@@ -404,14 +411,22 @@ class _Table:
         """The effective table; any key not taken is an error listing the allowed ones."""
         for key in self.raw:
             allowed = ", ".join(self.allowed)
-            raise InputError(f"{self.where}: {self.path}.{key}: unknown key (allowed: {allowed})")
+            raise InputError(
+                f"{self.where}: {self.path}.{_name(key)}: unknown key (allowed: {allowed})"
+            )
         return self.out
 
 
 def _number(table: _Table, key: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, int | float):
         raise table.fail(key, value, "must be a finite number")
-    return float(value)
+    try:
+        number = float(value)
+    except OverflowError:  # TOML integers have no size limit in tomllib
+        number = math.inf
+    if not math.isfinite(number):
+        raise table.fail(key, value, "must be a finite number")
+    return number
 
 
 def _integer(table: _Table, key: str, value) -> int:
@@ -552,6 +567,8 @@ def _read_material(table: _Table) -> None:
         table.take("nu", _number, 0.3, (lambda v: -1 < v < 0.5, "must be in (-1, 0.5)"))
     table.take("rho", _number, 1.0, POSITIVE)
     table.allowed = ["E", "nu", "lam", "mu", "rho"]
+    if not all(map(math.isfinite, _elastic_constants(table.out))):
+        raise InputError(f"{table.where}: material: {table.out} gives non-finite E, nu, lam or mu")
 
 
 def _elastic_constants(material: dict) -> tuple[float, float, float, float]:
@@ -575,6 +592,10 @@ def _read_time(table: _Table) -> None:
 def _step_count(where: str, time: dict) -> int:
     """n_steps = T / dt, which must be an integer to within STEP_TOLERANCE."""
     ratio = time["T"] / time["dt"]
+    if not ratio <= MAX_STEPS:
+        raise InputError(
+            f"{where}: time.dt = {time['dt']}: T / dt = {ratio:.6g} steps (at most {MAX_STEPS:.0e})"
+        )
     if abs(ratio - round(ratio)) > STEP_TOLERANCE * ratio:
         raise InputError(
             f"{where}: time.dt = {time['dt']}: T / dt = {ratio:.6g} must be an integer"
@@ -589,7 +610,10 @@ def _read_penalty(table: _Table, E: float, h: float) -> None:
     in 1e3 .. 1e5 and grows above ~1e6, where the Dirichlet penalty over-constrains the
     MLS trace (README, accuracy section).
     """
-    alpha = table.take("alpha", _number, 1e4 * E / h, POSITIVE)
+    default = 1e4 * E / h
+    if "alpha" not in table.raw and not math.isfinite(default):
+        raise table.fail("alpha", default, "the default 1e4 E / h overflows: give penalty.alpha")
+    alpha = table.take("alpha", _number, default, POSITIVE)
     for kind in PENALTY_KINDS:
         table.take(f"alpha_{kind}", _number, alpha, POSITIVE)
 
@@ -609,7 +633,9 @@ def _read_boundaries(where: str, raw, part_names: list[str], has_exact: bool) ->
     for name, entry in raw.items():
         if name not in part_names:
             known = ", ".join(part_names)
-            raise InputError(f"{where}: boundary.{name}: unknown boundary part (allowed: {known})")
+            raise InputError(
+                f"{where}: boundary.{_name(name)}: unknown boundary part (allowed: {known})"
+            )
         table = _Table(where, f"boundary.{name}", entry)
         kind = table.take("type", _choice(*BOUNDARY_KEYS))
         for key, convert, zero, derived in BOUNDARY_KEYS[kind]:
@@ -637,7 +663,7 @@ def _read_solver(where: str, raw) -> dict[str, str]:
     for key, value in table.raw.items():
         name = key.lstrip("-")
         if not name or not all(c.isalnum() or c == "_" for c in name):
-            raise InputError(f"{where}: solver.{key}: not a PETSc option name")
+            raise InputError(f"{where}: solver.{_name(key)}: not a PETSc option name")
         if isinstance(value, bool):
             # A bare "-ksp_monitor" is PETSc's "true"; "-ksp_monitor true" would name a viewer.
             options[name] = "" if value else "false"
@@ -655,7 +681,7 @@ def _validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict,
             raise InputError(f"{where}: {key} = {_show(value)}: must be a string")
         if key not in SECTIONS and key not in TOP_LEVEL_KEYS:
             allowed = ", ".join(SECTIONS)
-            raise InputError(f"{where}: [{key}]: unknown section (allowed: {allowed})")
+            raise InputError(f"{where}: [{_name(key)}]: unknown section (allowed: {allowed})")
     params: dict = {"name": name, **{key: raw[key] for key in TOP_LEVEL_KEYS if key in raw}}
     has_exact = "exact" in raw
 
