@@ -130,9 +130,7 @@ def _dispatch(comm, args) -> int:
     from parefg import commands
 
     if args.command is None:  # `mpirun -n 2 parefg`: the default scene at modest resolution
-        args = argparse.Namespace(
-            command="run", scene="square", set=[], out=None, quiet=False, fail_at_step=None
-        )
+        args = _parser().parse_args(["run", "square"])
     return getattr(commands, args.command)(comm, args)
 
 

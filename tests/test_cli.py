@@ -153,3 +153,14 @@ def test_petsc_option_is_honoured(tmp_path):
     assert "SNES Function norm" in result.stdout
     quiet = run_parefg(["run", "square", *QUICK, "--out", str(tmp_path / "plain"), "--quiet"])
     assert "SNES Function norm" not in quiet.stdout
+
+
+@pytest.mark.serial_only
+def test_bare_parefg_under_mpirun_runs_the_default_scene(tmp_path):
+    """`mpirun -n 2 parefg` (no arguments) runs "square" into runs/square and prints errors."""
+    result = run_parefg([], ranks=2, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "errors at T" in result.stdout
+    summary = json.loads((tmp_path / "runs" / "square" / "summary.json").read_text())
+    assert summary["scene"] == "square" and summary["mpi_ranks"] == 2
+    assert summary["errors"]["h1_rel"] < 1e-2
