@@ -75,12 +75,12 @@ def test_effective_params_contain_defaults(square):
         "h": 0.0625,
         "degree": 2,
         "weight": "cubic",
-        "support": 2.6,
-        "quadrature": 4,
+        "support": 3.2,
+        "quadrature": 5,
         "cells": "quad",
     }
     assert params["penalty"] == dict.fromkeys(
-        ("alpha", "alpha_dirichlet", "alpha_contact", "alpha_friction"), 1.6e7
+        ("alpha", "alpha_dirichlet", "alpha_contact", "alpha_friction"), 1.6e5
     )
     assert params["output"] == {"every": 0, "fields": ["u", "v", "a", "von_mises", "contact"]}
     assert params["boundary"]["bottom"] == {"type": "contact", "gap": 0}
@@ -97,7 +97,7 @@ def test_empty_scene_is_all_defaults(tmp_path):
         "newmark",
         10,
     )
-    assert scene.alpha_dirichlet == scene.alpha_contact == scene.alpha_friction == 1e7
+    assert scene.alpha_dirichlet == scene.alpha_contact == scene.alpha_friction == 1e5  # 1e4 E/h
     assert scene.boundaries == {} and scene.exact is None and scene.solver_options == {}
     assert scene.params["initial"] == {"u": [0, 0], "v": [0, 0]}
     assert scene.params["loads"] == {"f": [0, 0]}
@@ -144,7 +144,7 @@ def test_overrides_change_values():
         ],
     )
     assert scene.h == 0.05 and scene.params["discretization"]["h"] == 0.05
-    assert scene.alpha_contact == pytest.approx(1e6 / 0.05, rel=1e-15)  # default follows h
+    assert scene.alpha_contact == pytest.approx(1e4 / 0.05, rel=1e-15)  # default follows h
     assert scene.n_steps == 10 and scene.output_every == 2
     bottom = scene.boundaries["bottom"]
     assert bottom.friction_is_zero
@@ -337,7 +337,7 @@ def test_bad_files(tmp_path):
     )
     missing = load_error(str(tmp_path / "nothere.toml"))
     assert "nothere.toml" in missing and "no such built-in scene or file" in missing
-    assert "built-in: square, z" in load_error("no_such_scene")
+    assert "built-in: impact, square, stick, z" in load_error("no_such_scene")
     assert "[foo]: unknown section" in load_error(write(tmp_path, "[foo]\na = 1\n"))
     both = write(tmp_path, "[material]\nE = 1\nlam = 1\nmu = 1\n")
     assert "not both" in load_error(both)
