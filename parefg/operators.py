@@ -8,7 +8,6 @@ u_h (and its gradient) at quadrature points, Gamma_C points and nodes.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,6 +19,7 @@ from parefg.assembly import gram_matrix, interleave, owned_rows, petsc_matrix, s
 from parefg.geometry import NodeCloud, build_node_cloud
 from parefg.mls import MLS, MLSError, ShapeValues
 from parefg.partition import Partition, partition_cloud
+from parefg.profiling import phase
 from parefg.quadrature import Quadrature, cell_quadrature, segment_quadrature
 
 
@@ -130,16 +130,15 @@ class _Builder:
 
     def build(self) -> Discretization:
         comm, scene = self.comm, self.scene
-        tic = time.perf_counter()
-        cloud = build_node_cloud(comm, scene.domain, scene.h, scene.cells)
-        cloud, partition = partition_cloud(cloud, comm.size)
-        self.cloud, self.partition = cloud, partition
-        self.n_nodes = len(cloud.coords)
-        self.node_ranges = partition.node_ranges
-        self.dof_ranges = 2 * partition.node_ranges
-        start, stop = partition.node_ranges[comm.rank], partition.node_ranges[comm.rank + 1]
-        self.n_dofs_local = 2 * (stop - start)
-        self.timings["mesh"] = time.perf_counter() - tic
+        with phase(self.timings, "mesh"):
+            cloud = build_node_cloud(comm, scene.domain, scene.h, scene.cells)
+            cloud, partition = partition_cloud(cloud, comm.size)
+            self.cloud, self.partition = cloud, partition
+            self.n_nodes = len(cloud.coords)
+            self.node_ranges = partition.node_ranges
+            self.dof_ranges = 2 * partition.node_ranges
+            start, stop = partition.node_ranges[comm.rank], partition.node_ranges[comm.rank + 1]
+            self.n_dofs_local = 2 * (stop - start)
         self.mls = MLS(
             cloud.coords,
             scene.support * cloud.spacing,
@@ -150,31 +149,29 @@ class _Builder:
         self.conditions = []
 
         domain_q, domain_shape = self._domain_points()
-        tic = time.perf_counter()
-        n = self.n_nodes
-        phi = shape_matrix(domain_shape, n)
-        grads = [shape_matrix(domain_shape, n, d) for d in range(2)]
-        mass_local = interleave(gram_matrix(phi, scene.rho * domain_q.weights, phi))
-        stiffness_local = _stiffness(grads, domain_q.weights, scene.lam, scene.mu)
-        domain = self._point_set(domain_q, domain_shape, gradients=True)
-        self.timings["assembly"] += time.perf_counter() - tic
+        with phase(self.timings, "assembly"):
+            n = self.n_nodes
+            phi = shape_matrix(domain_shape, n)
+            grads = [shape_matrix(domain_shape, n, d) for d in range(2)]
+            mass_local = interleave(gram_matrix(phi, scene.rho * domain_q.weights, phi))
+            stiffness_local = _stiffness(grads, domain_q.weights, scene.lam, scene.mu)
+            domain = self._point_set(domain_q, domain_shape, gradients=True)
 
         boundary, contact, dirichlet_local, pattern_local = self._boundaries()
         nodes = self._node_points()
-        tic = time.perf_counter()
-        owned = {
-            name: owned_rows(comm, local, self.dof_ranges)
-            for name, local in [
-                ("mass", mass_local),
-                ("stiffness", stiffness_local),
-                ("dirichlet", dirichlet_local),
-            ]
-        }
-        mass, stiffness, dirichlet = (
-            self._square(owned[name]) for name in ("mass", "stiffness", "dirichlet")
-        )
-        contact_pattern = owned_rows(comm, pattern_local, self.dof_ranges)
-        self.timings["assembly"] += time.perf_counter() - tic
+        with phase(self.timings, "assembly"):
+            owned = {
+                name: owned_rows(comm, local, self.dof_ranges)
+                for name, local in [
+                    ("mass", mass_local),
+                    ("stiffness", stiffness_local),
+                    ("dirichlet", dirichlet_local),
+                ]
+            }
+            mass, stiffness, dirichlet = (
+                self._square(owned[name]) for name in ("mass", "stiffness", "dirichlet")
+            )
+            contact_pattern = owned_rows(comm, pattern_local, self.dof_ranges)
         conditions = np.concatenate(self.conditions) if self.conditions else np.ones(1)
         return Discretization(
             comm=comm,
@@ -200,16 +197,15 @@ class _Builder:
 
     def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
         """MLS at this rank's points; an MLS failure on any rank is raised on every rank."""
-        tic = time.perf_counter()
-        try:
-            shape, message = self.mls.evaluate(points, gradients=gradients), None
-        except MLSError as error:
-            shape, message = None, str(error)
-        messages = [m for m in self.comm.allgather(message) if m]
-        if messages:
-            raise MLSError(messages[0])
-        self.conditions.append(shape.condition)
-        self.timings["mls"] += time.perf_counter() - tic
+        with phase(self.timings, "mls"):
+            try:
+                shape, message = self.mls.evaluate(points, gradients=gradients), None
+            except MLSError as error:
+                shape, message = None, str(error)
+            messages = [m for m in self.comm.allgather(message) if m]
+            if messages:
+                raise MLSError(messages[0])
+            self.conditions.append(shape.condition)
         return shape
 
     def _domain_points(self) -> tuple[Quadrature, ShapeValues]:
@@ -269,26 +265,24 @@ class _Builder:
                 continue
             quadrature, _ = self._boundary_quadrature([part_id])
             shape = self._shape(quadrature.points, gradients=False)
-            tic = time.perf_counter()
-            boundary[name] = self._point_set(quadrature, shape)
-            if bc.kind == "dirichlet":
-                phi = shape_matrix(shape, n)
-                dirichlet_local = dirichlet_local + interleave(
-                    gram_matrix(phi, quadrature.weights, phi)
-                )
-            self.timings["assembly"] += time.perf_counter() - tic
+            with phase(self.timings, "assembly"):
+                boundary[name] = self._point_set(quadrature, shape)
+                if bc.kind == "dirichlet":
+                    phi = shape_matrix(shape, n)
+                    dirichlet_local = dirichlet_local + interleave(
+                        gram_matrix(phi, quadrature.weights, phi)
+                    )
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
             quadrature, rows = self._boundary_quadrature(contact_parts)
             shape = self._shape(quadrature.points, gradients=False)
-            tic = time.perf_counter()
-            part_of_point = cloud.segment_part[quadrature.cell]
-            contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows)
-            phi = shape_matrix(shape, n)
-            coupling = (phi.T @ phi).tocsr()
-            coupling.data[:] = 0.0
-            pattern = sp.kron(coupling, np.ones((2, 2)), format="csr")
-            self.timings["assembly"] += time.perf_counter() - tic
+            with phase(self.timings, "assembly"):
+                part_of_point = cloud.segment_part[quadrature.cell]
+                contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows)
+                phi = shape_matrix(shape, n)
+                coupling = (phi.T @ phi).tocsr()
+                coupling.data[:] = 0.0
+                pattern = sp.kron(coupling, np.ones((2, 2)), format="csr")
         return boundary, contact, dirichlet_local, pattern
 
     def _node_points(self) -> PointSet:
@@ -296,14 +290,16 @@ class _Builder:
         start, stop = self.node_ranges[self.comm.rank], self.node_ranges[self.comm.rank + 1]
         points = self.cloud.coords[start:stop]
         shape = self._shape(points, gradients=True)
-        tic = time.perf_counter()
-        quadrature = Quadrature(
-            points=points, weights=np.ones(len(points)), cell=np.arange(start, stop), normals=None
-        )
-        nodes = self._point_set(
-            quadrature, shape, gradients=True, rows=self.cloud.original_index[start:stop]
-        )
-        self.timings["assembly"] += time.perf_counter() - tic
+        with phase(self.timings, "assembly"):
+            quadrature = Quadrature(
+                points=points,
+                weights=np.ones(len(points)),
+                cell=np.arange(start, stop),
+                normals=None,
+            )
+            nodes = self._point_set(
+                quadrature, shape, gradients=True, rows=self.cloud.original_index[start:stop]
+            )
         return nodes
 
 

@@ -15,6 +15,7 @@ from parefg.checkpoint import read_checkpoint, write_checkpoint
 from parefg.errors import InputError, SolverError
 from parefg.operators import build_discretization
 from parefg.output import ResultWriter
+from parefg.profiling import factorization_stats, phase, start_logging
 from parefg.simulation import Simulation
 
 
@@ -131,6 +132,7 @@ def run_scene(
     Returns the summary dict (the contents of summary.json).
     """
     start = time.perf_counter()
+    start_logging()
     out_dir = choose_output_dir(comm, scene.name, out)
     say = (lambda *a: print(*a, flush=True)) if comm.rank == 0 and not quiet else (lambda *a: None)
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
@@ -141,9 +143,8 @@ def run_scene(
         f"degree {scene.degree}, {'contact' if sim.law else 'no contact'}"
     )
     metadata = {"params": scene.params, "version": __version__, "mpi_ranks": comm.size}
-    tic = time.perf_counter()
-    writer = _writer(comm, sim, out_dir, metadata)
-    sim.timings["output"] += time.perf_counter() - tic
+    with phase(sim.timings, "output"):
+        writer = _writer(comm, sim, out_dir, metadata)
 
     state, first = sim.start(), 1
     if restart is not None:
@@ -159,14 +160,13 @@ def run_scene(
                 raise SolverError(f"injected failure at step {n} (--fail-at-step)")
             state = sim.step(state, n)
             row = sim.history[-1]
-            tic = time.perf_counter()
-            writer.append_history(row)
-            if _is_output_step(n, scene):
-                node_fields, contact_fields = _output_fields(sim, state)
-                writer.write_step(n, row["time"], node_fields, contact_fields)
-            if checkpoint_every > 0 and n % checkpoint_every == 0:
-                write_checkpoint(comm, out_dir / "checkpoint.h5", sim, state, n)
-            sim.timings["output"] += time.perf_counter() - tic
+            with phase(sim.timings, "output"):
+                writer.append_history(row)
+                if _is_output_step(n, scene):
+                    node_fields, contact_fields = _output_fields(sim, state)
+                    writer.write_step(n, row["time"], node_fields, contact_fields)
+                if checkpoint_every > 0 and n % checkpoint_every == 0:
+                    write_checkpoint(comm, out_dir / "checkpoint.h5", sim, state, n)
             progress.update(n, row["time"], row["newton_iterations"])
     except SolverError:
         summary = _summary(comm, scene, disc, sim, start, failed=True)
@@ -191,6 +191,8 @@ def _summary(comm, scene, disc, sim, start, errors=None, failed=False) -> dict:
     timings = {"total": time.perf_counter() - start, **disc.timings}
     timings["assembly"] = disc.timings["assembly"] + sim.timings["assembly"]
     timings.update(solve=sim.timings["solve"], output=sim.timings["output"])
+    # PETSc's factorization events (part of assembly and solve), slowest rank
+    timings["factorization"] = comm.allreduce(factorization_stats()[0], op=MPI.MAX)
     summary = {
         "scene": scene.name,
         "params": scene.params,
