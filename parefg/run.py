@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import resource
 import sys
 import time
 from pathlib import Path
@@ -206,6 +207,11 @@ def _summary(comm, scene, disc, sim, start, errors=None, failed=False) -> dict:
         "linear_iterations": sim.linear_iterations,
         "factorizations": sim.solver.factorizations,
         "max_newton_per_step": max((r["newton_iterations"] for r in sim.history), default=0),
+        # peak resident memory of the largest rank (ru_maxrss is in KiB on Linux)
+        "peak_rss_mb": comm.allreduce(
+            resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, op=MPI.MAX
+        )
+        / 1024,
         "mls_condition": {"min": disc.condition_range[0], "max": disc.condition_range[1]},
         "version": __version__,
         "status": "failed" if failed else "ok",
