@@ -17,8 +17,11 @@ differentiating: with p_c(y) = p((y - c) / R),
     A_k = sum_I dw_I/dx_k p_I p_I^T,
     dphi_I/dx_k = (gamma_k^T p_I) w_I + (gamma^T p_I) dw_I/dx_k.
 
-Everything is vectorized over points (padded neighbour lists, batched dense
-linear algebra); Python loops run only over basis terms and chunks of points.
+Two interchangeable backends compute the same numbers (see :data:`BACKENDS`):
+``"numba"`` runs the compiled per-point kernels of :mod:`parefg.mls_kernels`
+(cell-list search, Cholesky of A); ``"numpy"`` is vectorized over points (k-d
+tree search, padded neighbour lists, batched dense linear algebra) and serves
+as the reference and as the fallback when numba or a compiled weight is missing.
 """
 
 from dataclasses import dataclass
@@ -26,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from parefg import mls_kernels
 from parefg.errors import InputError
 from parefg.weights import get_weight
 
@@ -33,6 +37,8 @@ from parefg.weights import get_weight
 MAX_CONDITION = 1e12
 # Points per batch of dense linear algebra: bounds memory at about 100 MB for m = 3.
 CHUNK_POINTS = 20000
+# Backends by name; the default is the first one usable for the chosen weight.
+BACKENDS = ("numba", "numpy")
 
 
 class MLSError(InputError):
@@ -116,6 +122,9 @@ class MLS:
         Name of a registered weight (see :data:`parefg.weights.WEIGHTS`).
     support_factor : float, optional
         The dilation s, only quoted in error messages.
+    backend : {"numba", "numpy"}, optional
+        How to compute (see :data:`BACKENDS`); by default numba when it is installed
+        and knows the weight, else numpy.
     """
 
     def __init__(
@@ -125,6 +134,7 @@ class MLS:
         degree: int,
         weight: str = "cubic",
         support_factor: float | None = None,
+        backend: str | None = None,
     ):
         if degree not in (1, 2, 3):
             raise InputError(f"discretization.degree: must be 1, 2 or 3, got {degree!r}")
@@ -140,6 +150,22 @@ class MLS:
         self.support_factor = support_factor
         self.max_radius = float(self.support_radius.max())
         self.tree = cKDTree(self.nodes)
+        self.backend = self._choose_backend(backend)
+        # Cell list for the compiled neighbour search (None for numpy).
+        self.cells = None
+        if self.backend == "numba":
+            self.cells = mls_kernels.build_cells(self.nodes, self.max_radius)
+
+    def _choose_backend(self, backend):
+        """The backend to use: the requested one, or the first usable one of BACKENDS."""
+        compiled = mls_kernels.AVAILABLE and self.weight.name in mls_kernels.WEIGHT_CODES
+        if backend is None:
+            return "numba" if compiled else "numpy"
+        if backend not in BACKENDS:
+            raise InputError(f"MLS backend must be one of {BACKENDS}, got {backend!r}")
+        if backend == "numba" and not compiled:
+            raise InputError(f"MLS backend 'numba' is unavailable for weight {self.weight.name!r}")
+        return backend
 
     def evaluate(self, points: np.ndarray, gradients: bool = True) -> ShapeValues:
         """Shape functions (and gradients) at ``points`` of shape (n_points, 2). Not collective.
@@ -152,6 +178,8 @@ class MLS:
         """
         points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)  # (n_points, 2)
         neighbours, mask = self.find_neighbours(points)
+        if self.backend == "numba":
+            return self._evaluate_compiled(points, neighbours, mask, gradients)
         phi = np.zeros(neighbours.shape)  # (n_points, n_max)
         dphi = np.zeros((*neighbours.shape, 2)) if gradients else None  # (n_points, n_max, 2)
         condition = np.zeros(len(points))  # (n_points,)
@@ -174,6 +202,10 @@ class MLS:
         """
         if len(points) == 0:
             return np.zeros((0, 0), dtype=np.int64), np.zeros((0, 0), dtype=bool)
+        if self.backend == "numba":
+            arguments = (points, self.nodes, self.support_radius, self.max_radius, self.cells)
+            n_max = max(int(mls_kernels.count_neighbours(*arguments).max()), 1)
+            return mls_kernels.fill_neighbours(*arguments, n_max)
         # The largest radius bounds every support: candidates within it ...
         distance, index = self._candidates(points)
         found = index < len(self.nodes)
@@ -281,8 +313,35 @@ class MLS:
         """||A||_F ||A^-1||_F for stacks of matrices, (n,)."""
         return np.linalg.norm(moment, axis=(1, 2)) * np.linalg.norm(inverse, axis=(1, 2))
 
+    def _evaluate_compiled(self, points, neighbours, mask, gradients):
+        """:meth:`evaluate` by the numba kernel, all points at once.
+
+        Errors are raised as the chunked numpy path raises them: in the first chunk
+        holding a bad point, neighbour counts before condition numbers.
+        """
+        phi, dphi, condition = mls_kernels.shape_functions(
+            points,
+            self.nodes,
+            self.support_radius,
+            mls_kernels.WEIGHT_CODES[self.weight.name],
+            mls_kernels.basis_size(self.degree),
+            neighbours,
+            mask,
+            gradients,
+        )
+        bad = (mask.sum(axis=1) < self.n_basis) | ~(condition <= MAX_CONDITION)
+        if bad.any():
+            start = int(np.argmax(bad)) // CHUNK_POINTS * CHUNK_POINTS
+            chunk = slice(start, start + CHUNK_POINTS)
+            self._check_conditioning(points[chunk], mask[chunk], np.zeros(len(points[chunk])))
+            self._check_conditioning(points[chunk], mask[chunk], condition[chunk])
+        return ShapeValues(neighbours, mask, phi, dphi if gradients else None, condition)
+
     def _evaluate_chunk(self, points, neighbours, mask, gradients):
-        """phi (n, n_max), dphi (n, n_max, 2) or None and condition (n,) for one chunk of points."""
+        """phi (n, n_max), dphi (n, n_max, 2) or None and condition (n,) for one chunk of points.
+
+        The numpy backend: vectorized over points with batched dense linear algebra.
+        """
         w, dw, offset, scale = self._weights(points, neighbours, mask)
         basis = pascal_basis(offset / scale[:, None, None], self.degree)  # (n, n_max, n_basis)
         basis_t = basis.transpose(0, 2, 1)  # (n, n_basis, n_max)

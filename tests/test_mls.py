@@ -17,8 +17,9 @@ import pytest
 from mpi4py import MPI
 
 from parefg import mls as mls_module
+from parefg import mls_kernels
 from parefg.errors import InputError
-from parefg.mls import MLS, MLSError, basis_exponents, n_basis
+from parefg.mls import BACKENDS, MLS, MLSError, basis_exponents, n_basis
 from parefg.weights import WEIGHTS, get_weight
 
 H = 0.1
@@ -183,14 +184,15 @@ def test_values_match_textbook_formula(degree):
     assert MPI.COMM_WORLD.allreduce(error, op=MPI.MAX) < 1e-8
 
 
-def test_neighbours_are_exactly_the_covering_nodes():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_neighbours_are_exactly_the_covering_nodes(backend):
     # A dense cluster of nodes near (0.9, 0.9) and one query point inside it that the
     # padding-width sample misses: the search must widen its lists, not drop nodes.
     rng = np.random.default_rng(4)
     nodes = np.concatenate([grid_nodes(), 0.9 + 0.02 * rng.uniform(-1, 1, (200, 2))])
     radius = 0.25 * rng.uniform(0.5, 1.0, len(nodes))
     points = np.concatenate([rng.uniform(0.0, 0.5, (1000, 2)), [[0.9, 0.9]]])[[1000, *range(1000)]]
-    shape = MLS(nodes, radius, 1).evaluate(points, gradients=False)
+    shape = MLS(nodes, radius, 1, backend=backend).evaluate(points, gradients=False)
     covering = (
         np.linalg.norm(points[:, None, :] - nodes[None, :, :], axis=2) < radius
     )  # brute force
@@ -241,9 +243,10 @@ def test_n_basis_counts_pascal_terms():
     assert basis_exponents(2).tolist() == [[0, 0], [1, 0], [0, 1], [2, 0], [1, 1], [0, 2]]
 
 
-def test_too_small_support_names_point_and_neighbour_count():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_too_small_support_names_point_and_neighbour_count(backend):
     # Support 0.75 h on a grid: a cell centre sees only the 4 corners of its cell.
-    mls = MLS(grid_nodes(), 0.75 * H, 2, support_factor=0.75)
+    mls = MLS(grid_nodes(), 0.75 * H, 2, support_factor=0.75, backend=backend)
     with pytest.raises(MLSError) as raised:
         mls.evaluate(np.array([[0.45, 0.45], [0.55, 0.55]]))
     message = str(raised.value)
@@ -254,13 +257,15 @@ def test_too_small_support_names_point_and_neighbour_count():
     assert isinstance(raised.value, InputError)
 
 
-def test_point_outside_every_support_is_an_error():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_point_outside_every_support_is_an_error(backend):
     with pytest.raises(MLSError, match=re.escape("(3, 3): 0 neighbours for 3 basis functions")):
-        MLS(grid_nodes(), 2 * H, 1).evaluate(np.array([[0.5, 0.5], [3.0, 3.0]]))
+        MLS(grid_nodes(), 2 * H, 1, backend=backend).evaluate(np.array([[0.5, 0.5], [3.0, 3.0]]))
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("slope", [0.5, 0.0])
-def test_collinear_neighbours_are_an_error(slope):
+def test_collinear_neighbours_are_an_error(slope, backend):
     # Plenty of nodes, all on one line: A is singular for every degree >= 1 (for slope 0
     # exactly singular, which breaks the LU factorization itself).
     t = np.linspace(0.0, 1.0, 30)
@@ -268,7 +273,7 @@ def test_collinear_neighbours_are_an_error(slope):
     points = np.array([[0.5, 0.5 * slope], [0.25, 0.25 * slope]])
     point = re.escape(f"at point (0.5, {0.5 * slope:g})")
     with pytest.raises(MLSError, match=point + r": \d+ neighbours for 3 basis functions"):
-        MLS(nodes, 0.3, 1).evaluate(points)
+        MLS(nodes, 0.3, 1, backend=backend).evaluate(points)
 
 
 def test_bad_degree_and_weight_are_input_errors():
@@ -303,3 +308,82 @@ def test_weight_formulas():
     floor = np.exp(-1 / 0.16)
     expected = (np.exp(-0.25 / 0.16) - floor) / (1 - floor)
     np.testing.assert_allclose(gaussian.value(np.array([0.0, 0.5])), [1.0, expected], rtol=1e-14)
+
+
+# ----------------------------------------------------------------------------- compiled backend
+
+
+@pytest.mark.parametrize("weight", sorted(WEIGHTS))
+@pytest.mark.parametrize("degree", [1, 2, 3])
+def test_numba_and_numpy_backends_agree(degree, weight):
+    # Same cloud, nonuniform supports: phi, dphi (as dense matrices, so list order does
+    # not matter) and condition numbers agree to 1e-12 relative to their largest entry.
+    nodes = jittered_nodes()
+    radius = SUPPORT[degree] * H * np.linspace(1.0, 1.3, len(nodes))
+    points = my_share(square_points())
+    compiled, reference = (
+        MLS(nodes, radius, degree, weight, backend=backend).evaluate(points)
+        for backend in ("numba", "numpy")
+    )
+    errors = [np.max(np.abs(compiled.condition / reference.condition - 1.0), initial=0.0)]
+    for component in (None, 0, 1):
+        values = [
+            dense_phi(s, len(nodes), s.phi if component is None else s.dphi[..., component])
+            for s in (compiled, reference)
+        ]
+        errors.append(np.max(np.abs(values[0] - values[1]), initial=0.0) / np.abs(values[1]).max())
+    assert max(MPI.COMM_WORLD.allreduce(e, op=MPI.MAX) for e in errors) < 1e-12
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3])
+def test_numba_kernel_on_given_lists_matches_numpy_entrywise(degree):
+    # On identical padded lists the two backends agree entry by entry, padding included.
+    nodes = jittered_nodes()
+    points = my_share(square_points())
+    compiled = MLS(nodes, SUPPORT[degree] * H, degree, backend="numba")
+    reference = MLS(nodes, SUPPORT[degree] * H, degree, backend="numpy")
+    neighbours, mask = compiled.find_neighbours(points)
+    phi, dphi, condition = reference._evaluate_chunk(points, neighbours, mask, True)
+    shape = compiled.evaluate(points)
+    assert np.array_equal(shape.neighbours, neighbours) and np.array_equal(shape.mask, mask)
+    np.testing.assert_allclose(shape.phi, phi, rtol=0, atol=1e-12 * np.abs(phi).max(initial=1))
+    np.testing.assert_allclose(shape.dphi, dphi, rtol=0, atol=1e-12 * np.abs(dphi).max(initial=1))
+    # A^-1 (hence ||A^-1||_F) is only accurate to about kappa eps in either backend: m = 3
+    # reaches kappa = 3e5 here, where 1e-12 is the round-off floor of the estimate itself.
+    floor = np.maximum(1e-12, 4.0 * condition * np.finfo(float).eps)
+    assert np.all(np.abs(shape.condition / condition - 1.0) <= floor)
+    assert np.all(shape.phi[~mask] == 0.0) and np.all(shape.dphi[~mask] == 0.0)
+
+
+@pytest.mark.parametrize("name", sorted(WEIGHTS))
+def test_compiled_weights_match_the_registry(name):
+    r = np.linspace(0.0, 1.2, 1201)
+    compiled = np.array(
+        [mls_kernels.weight_and_slope(mls_kernels.WEIGHT_CODES[name], x) for x in r]
+    )
+    weight = get_weight(name)
+    # Terms of the polynomials reach 24 (quartic slope), so cancellation near r = 1 leaves
+    # a few ulps of 24, about 1e-14, as the floor of any two evaluation orders.
+    np.testing.assert_allclose(compiled[:, 0], weight.value(r), rtol=1e-14, atol=1e-14)
+    np.testing.assert_allclose(compiled[:, 1], weight.derivative(r), rtol=1e-14, atol=1e-14)
+
+
+def test_both_backends_report_the_same_first_bad_point(monkeypatch):
+    # Chunk 1 (points 0-6) holds an ill-conditioned point, chunk 2 a point with too few
+    # neighbours: the chunked numpy path reports the former, and so must numba.
+    monkeypatch.setattr(mls_module, "CHUNK_POINTS", 7)
+    t = np.linspace(0.0, 1.0, 30)
+    nodes = np.concatenate([grid_nodes(), np.column_stack([t, 3.0 + 0.5 * t])])
+    points = np.full((20, 2), 0.5)
+    points[3], points[10] = (0.5, 3.25), (9.0, 9.0)
+    messages = []
+    for backend in BACKENDS:
+        with pytest.raises(MLSError) as raised:
+            MLS(nodes, 0.3, 1, backend=backend).evaluate(points)
+        messages.append(str(raised.value))
+    assert "(0.5, 3.25)" in messages[0] and messages[0] == messages[1]
+
+
+def test_unknown_backend_is_an_input_error():
+    with pytest.raises(InputError, match="backend"):
+        MLS(grid_nodes(), 0.2, 1, backend="fortran")
