@@ -15,24 +15,72 @@ gradients at this rank's points) need no exchange: their rows are this rank's po
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg import assembly_kernels as kernels
 from parefg.mls import ShapeValues
+
+
+def _sorted_neighbours(shape: ShapeValues, n_nodes: int):
+    """Each point's neighbour slots ordered by node, padding last: (order, nodes, mask).
+
+    Sorted columns make the CSR arrays of the point operators final as built.
+    """
+    keys = np.where(shape.mask, shape.neighbours, n_nodes)  # (n_points, n_max)
+    order = np.argsort(keys, axis=1, kind="stable")
+    nodes = np.take_along_axis(shape.neighbours, order, axis=1)
+    return order, nodes, np.take_along_axis(shape.mask, order, axis=1)
+
+
+def _point_rows(nodes, mask, data, components, stride, n_cols) -> sp.csr_matrix:
+    """CSR with r rows per point: row r q + i holds data[q, i, k] at column stride node_k + c_i.
+
+    ``nodes``, ``mask`` (n_points, n_max) sorted by node; ``data`` (n_points, r, n_max);
+    ``components`` (r,) the DOF component c_i of each row.
+    """
+    n_points, n_rows_per_point = len(nodes), len(components)
+    columns = stride * nodes[:, None, :] + components[None, :, None]  # (n_points, r, n_max)
+    keep = np.broadcast_to(mask[:, None, :], columns.shape)
+    row_lengths = np.repeat(mask.sum(axis=1), n_rows_per_point)  # (r n_points,)
+    indptr = np.concatenate([[0], np.cumsum(row_lengths)])
+    return sp.csr_matrix(
+        (np.broadcast_to(data, columns.shape)[keep], columns[keep], indptr),
+        shape=(n_rows_per_point * n_points, n_cols),
+    )
 
 
 def shape_matrix(shape: ShapeValues, n_nodes: int, derivative: int | None = None) -> sp.csr_matrix:
     """Scalar point-to-node matrix: row q holds phi_I(x_q) (or d phi_I / d x_derivative).
 
-    Returns a (n_points, n_nodes) CSR matrix; padding entries of the neighbour lists are dropped.
+    Returns a (n_points, n_nodes) CSR matrix with sorted columns; padding entries dropped.
     """
-    n_points, n_max = shape.neighbours.shape
-    rows = np.repeat(np.arange(n_points), n_max).reshape(n_points, n_max)[shape.mask]
-    cols = shape.neighbours[shape.mask]
+    order, nodes, mask = _sorted_neighbours(shape, n_nodes)
     values = shape.phi if derivative is None else shape.dphi[:, :, derivative]
-    return sp.csr_matrix((values[shape.mask], (rows, cols)), shape=(n_points, n_nodes))
+    values = np.take_along_axis(values, order, axis=1)[:, None, :]  # (n_points, 1, n_max)
+    return _point_rows(nodes, mask, values, np.zeros(1, dtype=np.int64), 1, n_nodes)
+
+
+def value_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
+    """(2 n_points x 2 n_nodes) interleaved values: entry (2q + c, 2I + c) = phi_I(x_q).
+
+    Equal to ``interleave(shape_matrix(shape, n_nodes))``, built without the Kronecker product.
+    """
+    order, nodes, mask = _sorted_neighbours(shape, n_nodes)
+    phi = np.take_along_axis(shape.phi, order, axis=1)[:, None, :]  # (n_points, 1, n_max)
+    return _point_rows(nodes, mask, phi, np.arange(2), 2, 2 * n_nodes)
+
+
+def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
+    """(4 n_points x 2 n_nodes) gradients: row 4q + 2c + d = d phi_I / d x_d on DOF 2I + c."""
+    order, nodes, mask = _sorted_neighbours(shape, n_nodes)
+    dphi = np.take_along_axis(shape.dphi, order[:, :, None], axis=1)  # (n_points, n_max, 2)
+    per_row = dphi.transpose(0, 2, 1)[:, [0, 1, 0, 1], :]  # (n_points, 4, n_max): d = 0, 1, 0, 1
+    return _point_rows(nodes, mask, per_row, np.array([0, 0, 1, 1]), 2, 2 * n_nodes)
 
 
 def interleave(scalar: sp.spmatrix) -> sp.csr_matrix:
@@ -41,6 +89,108 @@ def interleave(scalar: sp.spmatrix) -> sp.csr_matrix:
     kron(S, I_2): entry (2q + c, 2I + c) = S[q, I], matching the interleaved DOF numbering.
     """
     return sp.kron(scalar, sp.identity(2, format="csr"), format="csr")
+
+
+@dataclass
+class Coupling:
+    """Which nodes share a point: the scalar CSR pattern of every Gram matrix of a point set.
+
+    Points are processed in groups (the Gauss points of one cell or segment, contiguous
+    in a :class:`~parefg.quadrature.Quadrature`): a group's neighbour lists overlap, so
+    its Gram contributions are summed in a small dense matrix over the group's nodes and
+    added to the CSR entries once per group.  Row I of the pattern holds exactly the
+    nodes J with phi_I phi_J nonzero at some point (sorted), whatever the grouping.
+    """
+
+    shape: ShapeValues
+    n_nodes: int
+    indptr: np.ndarray  # (n_nodes + 1,)
+    indices: np.ndarray  # (nnz,) column node of each entry
+    group_start: np.ndarray  # (n_groups + 1,) points of group g: group_start[g]:group_start[g+1]
+    node_start: np.ndarray  # (n_groups + 1,) the group's nodes: nodes[node_start[g]:...]
+    nodes: np.ndarray  # (sum of group sizes,) sorted within each group
+    pair_start: np.ndarray  # (n_groups + 1,) the group's coupled pairs
+    pair_local: np.ndarray  # (n_pairs,) local pair i * group_size + j
+    pair_position: np.ndarray  # (n_pairs,) CSR entry of each pair
+
+    @classmethod
+    def of(cls, shape: ShapeValues, n_nodes: int, cell: np.ndarray | None = None) -> Coupling:
+        """The coupling of the points of ``shape``, grouped by equal consecutive ``cell`` ids.
+
+        Without ``cell`` every point is its own group.  Not collective.
+        """
+        n_points = len(shape.neighbours)
+        changes = np.arange(1, n_points) if cell is None else np.flatnonzero(np.diff(cell)) + 1
+        group_start = np.concatenate([[0], changes, [n_points]]).astype(np.int64)
+        if n_points == 0:
+            empty = np.zeros(0, dtype=np.int64)
+            zeros = np.zeros(n_nodes + 1, dtype=np.int64)
+            return cls(
+                shape,
+                n_nodes,
+                zeros,
+                empty,
+                group_start[:1],
+                group_start[:1],
+                empty,
+                group_start[:1],
+                empty.astype(np.int32),
+                empty,
+            )
+        node_start, nodes = kernels.group_nodes(shape.neighbours, shape.mask, group_start, n_nodes)
+        local_of = np.zeros(n_nodes, dtype=np.int64)  # scratch of the kernels
+        pair_start, pair_local, rows, cols = kernels.touched_pairs(
+            shape.neighbours, shape.mask, group_start, node_start, nodes, local_of
+        )
+        indptr, indices, position = kernels.pairs_to_csr(rows, cols, n_nodes)
+        return cls(
+            shape,
+            n_nodes,
+            indptr,
+            indices,
+            group_start,
+            node_start,
+            nodes,
+            pair_start,
+            pair_local,
+            position,
+        )
+
+    def gram(self, left: np.ndarray, right: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Blocks G[p, a, b] = sum_q w_q left[q, I, a] right[q, J, b] of each entry p = (I, J).
+
+        ``left`` (n_points, n_max, n_left) and ``right`` (n_points, n_max, n_right) are
+        per-slot shape data (phi[..., None] or dphi).  Returns (nnz, n_left, n_right).
+        """
+        if len(self.pair_local) == 0:
+            return np.zeros((len(self.indices), left.shape[2], right.shape[2]))
+        return kernels.gram_groups(
+            np.ascontiguousarray(left, dtype=np.float64),
+            np.ascontiguousarray(right, dtype=np.float64),
+            np.ascontiguousarray(weights, dtype=np.float64),
+            self.shape.neighbours,
+            self.shape.mask,
+            self.group_start,
+            self.node_start,
+            self.nodes,
+            self.pair_start,
+            self.pair_local,
+            self.pair_position,
+            len(self.indices),
+            np.zeros(self.n_nodes, dtype=np.int64),
+        )
+
+    def interleaved(self, blocks: np.ndarray, diagonal_only: bool = False) -> sp.csr_matrix:
+        """(2 n_nodes)^2 CSR with entry (2I + a, 2J + b) = blocks[p, a, b], p = (I, J).
+
+        ``diagonal_only`` stores only a = b: kron(G, I_2) for a scalar G given as
+        blocks[p, 0, 0] = blocks[p, 1, 1].  Explicit zeros are kept (they are pattern).
+        """
+        indptr, indices, data = kernels.interleave_blocks(
+            self.indptr, self.indices, np.ascontiguousarray(blocks, dtype=np.float64), diagonal_only
+        )
+        n_dofs = 2 * self.n_nodes
+        return sp.csr_matrix((data, indices, indptr), shape=(n_dofs, n_dofs))
 
 
 def _alltoallv(comm, send: np.ndarray, send_counts: np.ndarray) -> np.ndarray:
@@ -71,14 +221,17 @@ def owned_rows(comm, local: sp.spmatrix, row_ranges: np.ndarray) -> sp.csr_matri
     (n_owned_rows, n_cols) CSR matrix of the summed owned rows, duplicates added, explicit
     zeros kept (they carry sparsity patterns reserved for later values).
     """
-    coo = local.tocoo()
-    owner = np.searchsorted(row_ranges, coo.row, side="right") - 1
-    order = np.argsort(owner, kind="stable")
-    counts = np.bincount(owner, minlength=comm.size)
-    rows = _alltoallv(comm, coo.row[order].astype(np.int64), counts)
-    cols = _alltoallv(comm, coo.col[order].astype(np.int64), counts)
-    data = _alltoallv(comm, coo.data[order].astype(np.float64), counts)
+    local = sp.csr_matrix(local)
+    local.sum_duplicates()  # canonical CSR: sorted columns, duplicates added, zeros kept
     start, stop = row_ranges[comm.rank], row_ranges[comm.rank + 1]
+    if comm.size == 1:
+        return local
+    # CSR rows come grouped by owner already: rank r's entries are one contiguous slice
+    counts = np.diff(local.indptr[row_ranges])  # (comm.size,)
+    entry_rows = np.repeat(np.arange(local.shape[0]), np.diff(local.indptr))  # (nnz,)
+    rows = _alltoallv(comm, entry_rows.astype(np.int64), counts)
+    cols = _alltoallv(comm, local.indices.astype(np.int64), counts)
+    data = _alltoallv(comm, local.data.astype(np.float64), counts)
     owned = sp.coo_matrix((data, (rows - start, cols)), shape=(stop - start, local.shape[1]))
     return owned.tocsr()  # sums duplicates, keeps explicit zeros
 
@@ -127,6 +280,8 @@ def with_pattern(matrix: sp.csr_matrix, pattern: sp.csr_matrix) -> sp.csr_matrix
     scipy's sparse sum drops zeros; going through COO keeps them, which reserves the
     Gamma_C coupling in A_const so that contact terms never change the PETSc pattern.
     """
+    if pattern.nnz == 0:
+        return sp.csr_matrix(matrix)
     a, p = matrix.tocoo(), pattern.tocoo()
     rows = np.concatenate([a.row, p.row])
     cols = np.concatenate([a.col, p.col])

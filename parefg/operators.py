@@ -8,6 +8,7 @@ u_h (and its gradient) at quadrature points, Gamma_C points and nodes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,7 +16,13 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.assembly import gram_matrix, interleave, owned_rows, petsc_matrix, shape_matrix
+from parefg.assembly import (
+    Coupling,
+    gradient_operator,
+    owned_rows,
+    petsc_matrix,
+    value_operator,
+)
 from parefg.geometry import NodeCloud, build_node_cloud
 from parefg.mls import MLS, MLSError, ShapeValues
 from parefg.partition import Partition, partition_cloud
@@ -29,15 +36,28 @@ class PointSet:
 
     ``values`` is a (2 n_points x n_dofs) PETSc matrix, interleaved like the DOFs, so
     ``values @ d`` gives (u_x, u_y) at each point and ``values^T`` integrates point forces.
+    The gradient operator is built on first use (it is the largest operator and only
+    error norms and nodal stresses need it).
     """
 
     points: np.ndarray  # (n_points, 2)
     weights: np.ndarray  # (n_points,) quadrature weights (ones for nodes)
     normals: np.ndarray | None  # (n_points, 2) outward unit normals on boundaries
     values: PETSc.Mat
-    gradients: PETSc.Mat | None = None  # (4 n_points x n_dofs): du_x/dx, du_x/dy, du_y/dx, du_y/dy
     part: np.ndarray | None = None  # (n_points,) boundary part index of each point
     rows: np.ndarray | None = None  # (n_points,) global, rank-independent row of each point
+    build_gradients: Callable[[], PETSc.Mat] | None = field(default=None, repr=False)
+    _gradients: PETSc.Mat | None = field(default=None, init=False, repr=False)
+
+    @property
+    def gradients(self) -> PETSc.Mat | None:
+        """(4 n_points x n_dofs): du_x/dx, du_x/dy, du_y/dx, du_y/dy; None without gradients.
+
+        Collective on first access (it creates the PETSc matrix).
+        """
+        if self._gradients is None and self.build_gradients is not None:
+            self._gradients = self.build_gradients()
+        return self._gradients
 
     def evaluate(self, u: PETSc.Vec) -> np.ndarray:
         """u_h at the points, (n_points, 2).  Collective."""
@@ -88,37 +108,21 @@ class Discretization:
         return self.mass.createVecRight()
 
 
-def _gradient_matrix(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
-    """(4 n_points x 2 n_nodes) operator: row 4q + 2c + d = d phi_I / d x_d on DOF 2I + c."""
-    n_points, n_max = shape.neighbours.shape
-    q, k = np.nonzero(shape.mask)
-    node = shape.neighbours[q, k]
-    rows, cols, data = [], [], []
-    for c in range(2):
-        for d in range(2):
-            rows.append(4 * q + 2 * c + d)
-            cols.append(2 * node + c)
-            data.append(shape.dphi[q, k, d])
-    return sp.csr_matrix(
-        (np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))),
-        shape=(4 * n_points, 2 * n_nodes),
-    )
-
-
-def _stiffness(gradients: list[sp.csr_matrix], weights: np.ndarray, lam: float, mu: float):
-    """Stiffness K from the scalar gradient operators (n_points x n_nodes each).
+def _stiffness_blocks(gradient_gram: np.ndarray, lam: float, mu: float) -> np.ndarray:
+    """2 x 2 blocks of K per scalar entry from S[p, a, b] = int d_a phi_I d_b phi_J.
 
     K[2I+a, 2J+b] = int lam d_a phi_I d_b phi_J
                     + mu (delta_ab grad phi_I . grad phi_J + d_b phi_I d_a phi_J).
+    Returns (nnz, 2, 2).
     """
-    s = [[gram_matrix(gradients[a], weights, gradients[b]) for b in range(2)] for a in range(2)]
-    laplace = s[0][0] + s[1][1]
-    blocks = [
-        [lam * s[a][b] + mu * s[b][a] + (mu * laplace if a == b else 0) for b in range(2)]
-        for a in range(2)
-    ]
-    unit = [[sp.csr_matrix(([1.0], ([a], [b])), shape=(2, 2)) for b in range(2)] for a in range(2)]
-    return sum(sp.kron(blocks[a][b], unit[a][b], format="csr") for a in range(2) for b in range(2))
+    laplace = gradient_gram[:, 0, 0] + gradient_gram[:, 1, 1]  # (nnz,)
+    blocks = lam * gradient_gram + mu * gradient_gram.transpose(0, 2, 1)
+    return blocks + mu * laplace[:, None, None] * np.eye(2)
+
+
+def _mass_blocks(gram: np.ndarray) -> np.ndarray:
+    """kron(G, I_2) blocks (nnz, 2, 2) of a scalar Gram matrix given as (nnz, 1, 1)."""
+    return gram * np.eye(2)
 
 
 class _Builder:
@@ -151,10 +155,14 @@ class _Builder:
         domain_q, domain_shape = self._domain_points()
         with phase(self.timings, "assembly"):
             n = self.n_nodes
-            phi = shape_matrix(domain_shape, n)
-            grads = [shape_matrix(domain_shape, n, d) for d in range(2)]
-            mass_local = interleave(gram_matrix(phi, scene.rho * domain_q.weights, phi))
-            stiffness_local = _stiffness(grads, domain_q.weights, scene.lam, scene.mu)
+            coupling = Coupling.of(domain_shape, n, domain_q.cell)
+            phi, dphi = domain_shape.phi[:, :, None], domain_shape.dphi
+            mass_gram = coupling.gram(phi, phi, scene.rho * domain_q.weights)
+            mass_local = coupling.interleaved(_mass_blocks(mass_gram), diagonal_only=True)
+            stiffness_gram = coupling.gram(dphi, dphi, domain_q.weights)
+            stiffness_local = coupling.interleaved(
+                _stiffness_blocks(stiffness_gram, scene.lam, scene.mu)
+            )
             domain = self._point_set(domain_q, domain_shape, gradients=True)
 
         boundary, contact, dirichlet_local, pattern_local = self._boundaries()
@@ -224,18 +232,18 @@ class _Builder:
         return petsc_matrix(self.comm, owned, self.n_dofs_local, 2 * self.n_nodes, block_size=2)
 
     def _point_set(self, quadrature: Quadrature, shape: ShapeValues, gradients=False, **extra):
-        n = self.n_nodes
-        values = interleave(shape_matrix(shape, n))
-        values_mat = petsc_matrix(self.comm, values, self.n_dofs_local, 2 * n)
-        grad_mat = None
-        if gradients:
-            grad_mat = petsc_matrix(self.comm, _gradient_matrix(shape, n), self.n_dofs_local, 2 * n)
+        comm, n, n_dofs_local = self.comm, self.n_nodes, self.n_dofs_local
+        values = petsc_matrix(comm, value_operator(shape, n), n_dofs_local, 2 * n)
+
+        def build_gradients() -> PETSc.Mat:
+            return petsc_matrix(comm, gradient_operator(shape, n), n_dofs_local, 2 * n)
+
         return PointSet(
             points=quadrature.points,
             weights=quadrature.weights,
             normals=quadrature.normals,
-            values=values_mat,
-            gradients=grad_mat,
+            values=values,
+            build_gradients=build_gradients if gradients else None,
             **extra,
         )
 
@@ -268,9 +276,11 @@ class _Builder:
             with phase(self.timings, "assembly"):
                 boundary[name] = self._point_set(quadrature, shape)
                 if bc.kind == "dirichlet":
-                    phi = shape_matrix(shape, n)
-                    dirichlet_local = dirichlet_local + interleave(
-                        gram_matrix(phi, quadrature.weights, phi)
+                    coupling = Coupling.of(shape, n, quadrature.cell)
+                    phi = shape.phi[:, :, None]
+                    gram = coupling.gram(phi, phi, quadrature.weights)
+                    dirichlet_local = dirichlet_local + coupling.interleaved(
+                        _mass_blocks(gram), diagonal_only=True
                     )
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
@@ -279,10 +289,8 @@ class _Builder:
             with phase(self.timings, "assembly"):
                 part_of_point = cloud.segment_part[quadrature.cell]
                 contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows)
-                phi = shape_matrix(shape, n)
-                coupling = (phi.T @ phi).tocsr()
-                coupling.data[:] = 0.0
-                pattern = sp.kron(coupling, np.ones((2, 2)), format="csr")
+                coupling = Coupling.of(shape, n, quadrature.cell)
+                pattern = coupling.interleaved(np.zeros((len(coupling.indices), 2, 2)))
         return boundary, contact, dirichlet_local, pattern
 
     def _node_points(self) -> PointSet:

@@ -1,0 +1,204 @@
+"""The grouped (numba) assembly equals the straightforward scipy formulation.
+
+The reference below is the previous implementation, kept verbatim in spirit: scalar
+point-to-node matrices from COO, Gram matrices as sparse products S^T W S, stiffness
+blocks combined with Kronecker products.  The assembled M, K, G_D (owned rows) and the
+point operators must equal it to 1e-13 relative to the largest entry, serially and
+under mpirun (the reference sums every rank's dense contribution with an allreduce).
+"""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from mpi4py import MPI
+
+from parefg.assembly import Coupling, owned_rows
+from parefg.mls import MLS
+from parefg.operators import build_discretization
+from parefg.scene import load_scene
+
+TOLERANCE = 1e-13
+
+
+# -- the reference: the straightforward formulation ----------------------------------
+
+
+def reference_scalar(shape, n_nodes, derivative=None):
+    """(n_points, n_nodes): row q holds phi_I(x_q) or d phi_I / d x_derivative, from COO."""
+    n_points, n_max = shape.neighbours.shape
+    rows = np.repeat(np.arange(n_points), n_max).reshape(n_points, n_max)[shape.mask]
+    values = shape.phi if derivative is None else shape.dphi[:, :, derivative]
+    return sp.csr_matrix(
+        (values[shape.mask], (rows, shape.neighbours[shape.mask])), shape=(n_points, n_nodes)
+    )
+
+
+def reference_gram(left, weights, right):
+    return (left.T @ sp.diags(weights) @ right).tocsr()
+
+
+def reference_interleave(scalar):
+    return sp.kron(scalar, sp.identity(2), format="csr")
+
+
+def reference_stiffness(grads, weights, lam, mu):
+    """K[2I+a, 2J+b] = int lam d_a phi_I d_b phi_J + mu (delta_ab grad.grad + d_b phi_I d_a phi_J).
+
+    Summed block by block with Kronecker products, as the previous implementation did.
+    """
+    s = [[reference_gram(grads[a], weights, grads[b]) for b in range(2)] for a in range(2)]
+    laplace = s[0][0] + s[1][1]
+    total = sp.csr_matrix((2 * grads[0].shape[1],) * 2)
+    for a in range(2):
+        for b in range(2):
+            block = lam * s[a][b] + mu * s[b][a] + (mu * laplace if a == b else 0)
+            unit = sp.csr_matrix(([1.0], ([a], [b])), shape=(2, 2))
+            total = total + sp.kron(block, unit, format="csr")
+    return total
+
+
+def reference_gradients(shape, n_nodes):
+    """(4 n_points x 2 n_nodes): row 4q + 2c + d = d phi_I / d x_d on DOF 2I + c."""
+    q, k = np.nonzero(shape.mask)
+    node = shape.neighbours[q, k]
+    rows, cols, data = [], [], []
+    for c in range(2):
+        for d in range(2):
+            rows.append(4 * q + 2 * c + d)
+            cols.append(2 * node + c)
+            data.append(shape.dphi[q, k, d])
+    return sp.csr_matrix(
+        (np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(4 * len(shape.mask), 2 * n_nodes),
+    )
+
+
+# -- helpers -------------------------------------------------------------------------
+
+
+def global_dense(comm, local):
+    """Sum of every rank's (global-row) contribution as a dense array.  Collective."""
+    return comm.allreduce(local.toarray())
+
+
+def owned_dense(disc, matrix):
+    start, stop = disc.node_range
+    return global_dense(disc.comm, matrix)[2 * start : 2 * stop]
+
+
+def petsc_local_rows(matrix):
+    """This rank's rows of a PETSc AIJ matrix as a dense array (global columns)."""
+    indptr, indices, data = matrix.getValuesCSR()
+    n_rows = matrix.getLocalSize()[0]
+    return sp.csr_matrix((data, indices, indptr), shape=(n_rows, matrix.getSize()[1])).toarray()
+
+
+def assert_equal_matrices(new, reference):
+    scale = np.abs(reference).max()
+    assert scale > 0
+    assert np.abs(new - reference).max() <= TOLERANCE * scale
+
+
+@pytest.fixture(scope="module", params=[1, 2], ids=["m1", "m2"])
+def case(request):
+    """A discretization of the square (h = 1/16) and MLS evaluated at its points."""
+    scene = load_scene(
+        "square", [f"discretization.degree={request.param}", "discretization.h=0.0625"]
+    )
+    disc = build_discretization(MPI.COMM_WORLD, scene)
+    cloud = disc.cloud
+    mls = MLS(cloud.coords, scene.support * cloud.spacing, scene.degree, scene.weight,
+              support_factor=scene.support)  # fmt: skip
+    return scene, disc, mls
+
+
+# -- tests ---------------------------------------------------------------------------
+
+
+def test_mass_and_stiffness_equal_reference(case):
+    scene, disc, mls = case
+    shape = mls.evaluate(disc.domain.points, gradients=True)
+    n, weights = disc.n_nodes, disc.domain.weights
+    phi = reference_scalar(shape, n)
+    grads = [reference_scalar(shape, n, d) for d in range(2)]
+    mass = reference_interleave(reference_gram(phi, scene.rho * weights, phi))
+    stiffness = reference_stiffness(grads, weights, scene.lam, scene.mu)
+    assert_equal_matrices(disc.owned["mass"].toarray(), owned_dense(disc, mass))
+    assert_equal_matrices(disc.owned["stiffness"].toarray(), owned_dense(disc, stiffness))
+    assert_equal_matrices(petsc_local_rows(disc.stiffness), owned_dense(disc, stiffness))
+
+
+def test_stiffness_pattern_is_the_pairs_sharing_a_point(case):
+    """Entry (I, J) is stored exactly when phi_I and phi_J are both nonzero at some point."""
+    _, disc, mls = case
+    shape = mls.evaluate(disc.domain.points, gradients=False)
+    incidence = reference_scalar(shape, disc.n_nodes)
+    incidence.data[:] = 1.0
+    expected = owned_dense(disc, sp.kron(incidence.T @ incidence, np.ones((2, 2)))) > 0
+    stored = disc.owned["stiffness"].copy()
+    stored.data[:] = 1.0
+    np.testing.assert_array_equal(stored.toarray() > 0, expected)
+
+
+def test_dirichlet_and_contact_pattern_equal_reference(case):
+    scene, disc, mls = case
+    n = disc.n_nodes
+    dirichlet = sp.csr_matrix((2 * n, 2 * n))
+    for name, bc in scene.boundaries.items():
+        if bc.kind == "dirichlet":
+            points = disc.boundary[name]
+            phi = reference_scalar(mls.evaluate(points.points, gradients=False), n)
+            dirichlet = dirichlet + reference_interleave(reference_gram(phi, points.weights, phi))
+    assert_equal_matrices(disc.owned["dirichlet"].toarray(), owned_dense(disc, dirichlet))
+
+    phi = reference_scalar(mls.evaluate(disc.contact.points, gradients=False), n)
+    phi.data[:] = 1.0
+    coupling = sp.kron(phi.T @ phi, np.ones((2, 2)), format="csr")
+    expected = owned_dense(disc, coupling) > 0
+    pattern = disc.contact_pattern.copy()
+    assert not np.any(pattern.data)  # the pattern carries zeros only
+    pattern.data[:] = 1.0
+    np.testing.assert_array_equal(pattern.toarray() > 0, expected)
+
+
+def test_point_operators_equal_reference(case):
+    _, disc, mls = case
+    n = disc.n_nodes
+    for points in (disc.domain, disc.nodes):
+        shape = mls.evaluate(points.points, gradients=True)
+        values = reference_interleave(reference_scalar(shape, n)).toarray()
+        assert_equal_matrices(petsc_local_rows(points.values), values)
+        gradients = reference_gradients(shape, n).toarray()
+        assert_equal_matrices(petsc_local_rows(points.gradients), gradients)
+
+
+def test_grouping_does_not_change_the_gram_matrix(case):
+    """Cell groups and one-point groups give the same pattern and values (round-off)."""
+    _, disc, mls = case
+    shape = mls.evaluate(disc.domain.points, gradients=True)
+    cells = np.repeat(np.arange(len(shape.mask) // 5 + 1), 5)[: len(shape.mask)]
+    by_group = Coupling.of(shape, disc.n_nodes, cells)
+    by_point = Coupling.of(shape, disc.n_nodes)
+    np.testing.assert_array_equal(by_group.indptr, by_point.indptr)
+    np.testing.assert_array_equal(by_group.indices, by_point.indices)
+    grouped = by_group.gram(shape.dphi, shape.dphi, disc.domain.weights)
+    pointwise = by_point.gram(shape.dphi, shape.dphi, disc.domain.weights)
+    assert np.abs(grouped - pointwise).max() <= TOLERANCE * np.abs(pointwise).max()
+
+
+def test_owned_rows_sums_contributions_and_keeps_zeros(comm):
+    """Every rank adds rank + 1 on the diagonal and an explicit zero at (i, 0)."""
+    n_rows = 6
+    row_ranges = np.linspace(0, n_rows, comm.size + 1).astype(np.int64)
+    rows = np.concatenate([np.arange(n_rows), np.arange(n_rows)])
+    cols = np.concatenate([np.arange(n_rows), np.zeros(n_rows, dtype=np.int64)])
+    data = np.concatenate([np.full(n_rows, comm.rank + 1.0), np.zeros(n_rows)])
+    local = sp.csr_matrix((data, (rows, cols)), shape=(n_rows, n_rows))
+    owned = owned_rows(comm, local, row_ranges)
+    start, stop = row_ranges[comm.rank], row_ranges[comm.rank + 1]
+    total = comm.size * (comm.size + 1) / 2
+    expected = np.zeros((stop - start, n_rows))
+    expected[np.arange(stop - start), np.arange(start, stop)] = total
+    np.testing.assert_array_equal(owned.toarray(), expected)
+    # one explicit zero in column 0 per row, except row 0 where it meets the diagonal
+    assert owned.nnz == 2 * (stop - start) - (1 if start == 0 and stop > 0 else 0)
