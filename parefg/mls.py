@@ -167,8 +167,11 @@ class MLS:
             raise InputError(f"MLS backend 'numba' is unavailable for weight {self.weight.name!r}")
         return backend
 
-    def evaluate(self, points: np.ndarray, gradients: bool = True) -> ShapeValues:
+    def evaluate(self, points: np.ndarray, gradients: bool = True, neighbours=None) -> ShapeValues:
         """Shape functions (and gradients) at ``points`` of shape (n_points, 2). Not collective.
+
+        ``neighbours`` may pass the (neighbours, mask) of :meth:`find_neighbours` for these
+        points (so that the search can be timed on its own); by default it is computed here.
 
         Raises
         ------
@@ -177,7 +180,7 @@ class MLS:
             terms or a condition number above ``MAX_CONDITION``.
         """
         points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)  # (n_points, 2)
-        neighbours, mask = self.find_neighbours(points)
+        neighbours, mask = self.find_neighbours(points) if neighbours is None else neighbours
         if self.backend == "numba":
             return self._evaluate_compiled(points, neighbours, mask, gradients)
         phi = np.zeros(neighbours.shape)  # (n_points, n_max)

@@ -130,7 +130,7 @@ class _Builder:
 
     def __init__(self, comm, scene):
         self.comm, self.scene = comm, scene
-        self.timings = {"mesh": 0.0, "mls": 0.0, "assembly": 0.0}
+        self.timings = {"mesh": 0.0, "neighbours": 0.0, "mls": 0.0, "assembly": 0.0}
 
     def build(self) -> Discretization:
         comm, scene = self.comm, self.scene
@@ -205,9 +205,12 @@ class _Builder:
 
     def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
         """MLS at this rank's points; an MLS failure on any rank is raised on every rank."""
+        with phase(self.timings, "neighbours"):
+            neighbours = self.mls.find_neighbours(points)
         with phase(self.timings, "mls"):
             try:
-                shape, message = self.mls.evaluate(points, gradients=gradients), None
+                shape = self.mls.evaluate(points, gradients=gradients, neighbours=neighbours)
+                message = None
             except MLSError as error:
                 shape, message = None, str(error)
             messages = [m for m in self.comm.allgather(message) if m]
