@@ -28,6 +28,7 @@ import sympy
 
 from parefg.errors import InputError
 from parefg.expressions import SYMBOLS, compile_field, parse_expression
+from parefg.geometry import MAX_JITTER
 
 SCENES_DIR = Path(__file__).with_name("scenes")
 
@@ -79,6 +80,8 @@ class Scene:
     support: float
     quadrature: int
     cells: str
+    jitter: float
+    seed: int
     E: float
     nu: float
     lam: float
@@ -207,9 +210,11 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         name=params["name"],
         params=params,
         source_dir=source_dir,
-        domain=copy.deepcopy(params["domain"]),
+        domain=_cloud_description(params),
         part_names=list(part_names),
         **{key: disc[key] for key in ("h", "degree", "weight", "support", "quadrature", "cells")},
+        jitter=disc.get("jitter", 0.0),
+        seed=disc.get("seed", 0),
         E=E,
         nu=nu,
         lam=lam,
@@ -230,6 +235,15 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         output_fields=list(params["output"]["fields"]),
         solver_options=dict(params["solver"]),
     )
+
+
+def _cloud_description(params: dict) -> dict:
+    """The [domain] table, plus the node jitter and its seed when jitter > 0 (geometry's input)."""
+    domain = copy.deepcopy(params["domain"])
+    disc = params["discretization"]
+    if disc.get("jitter", 0.0) > 0:
+        domain.update(jitter=disc["jitter"], seed=disc.get("seed", 0))
+    return domain
 
 
 class _Mechanics:
@@ -551,6 +565,9 @@ def _read_discretization(table: _Table) -> None:
     table.take("support", _number, DEFAULT_SUPPORT[degree], (lambda v: v > 1, "must be > 1"))
     table.take("quadrature", _integer, DEFAULT_QUADRATURE.get(degree, 5), _between(1, 10))
     table.take("cells", _choice(*CELLS), "quad")
+    # Absent stays absent (no jitter): the effective scene of an unjittered run is unchanged.
+    table.take("jitter", _number, None, _between(0.0, MAX_JITTER))
+    table.take("seed", _integer, None, (lambda v: 0 <= v < 2**63, "must be in 0..2**63 - 1"))
 
 
 def _read_material(table: _Table) -> None:
