@@ -1,8 +1,9 @@
 """``parefg sweep``: run a grid of cases, tabulate error against wall time (SPEC 8).
 
 Each ``--vary section.key=v1,v2,...`` adds an axis; the cases are their product.  Rank 0
-writes sweep.csv, error_vs_time.png (H1 error against run time, one curve per MLS
-degree, points labelled by h and dt) and prints a table with the rates fitted from every
+writes sweep.csv, error_vs_time.png (H1 error against run time, points labelled by h and
+dt, one colour and one Pareto front -- the smallest error reached within a given time --
+per MLS degree) and prints a table with the rates fitted from every
 axis that varies h or dt (np.polyfit of log error against log h or log dt).
 """
 
@@ -132,9 +133,12 @@ def _plot(path: Path, rows: list[dict]) -> None:
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     for degree in sorted({r["degree"] for r in rows}):
         group = sorted((r for r in rows if r["degree"] == degree), key=lambda r: r["time"])
-        ax.loglog(
-            [r["time"] for r in group], [r["h1_rel"] for r in group], "o-", label=f"m = {degree}"
-        )
+        times = np.array([r["time"] for r in group])
+        errors = np.array([r["h1_rel"] for r in group])
+        (points,) = ax.loglog(times, errors, "o", alpha=0.6, label=f"m = {degree}")
+        # the Pareto front: the smallest error reached within each run time
+        front = np.minimum.accumulate(errors)
+        ax.step(times, front, where="post", color=points.get_color())
         for r in group:
             ax.annotate(
                 f"h={r['h']:.3g}\ndt={r['dt']:.3g}",
