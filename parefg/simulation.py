@@ -51,7 +51,20 @@ class Simulation:
         n_local = matrix.shape[0]
         a_const = petsc_matrix(self.comm, matrix, n_local, self.disc.n_dofs, block_size=2)
         a_const.setOption(PETSc.Mat.Option.SPD, True)
+        a_const.setNearNullSpace(self._rigid_body_modes(a_const))
         return a_const
+
+    def _rigid_body_modes(self, matrix: PETSc.Mat) -> PETSc.NullSpace:
+        """Translations and the rotation in nodal parameters, for GAMG (-pc_type gamg).
+
+        MLS reproduces linear fields, so the nodal parameters of a rigid motion are the
+        motion evaluated at the nodes.
+        """
+        start, stop = self.disc.node_range
+        coordinates = matrix.createVecRight()
+        coordinates.setBlockSize(2)
+        coordinates.setArray(self.disc.cloud.coords[start:stop].ravel())
+        return PETSc.NullSpace().createRigidBody(coordinates)
 
     # -- loads ---------------------------------------------------------------------
     def loads(self, t: float, dirichlet: bool = True) -> PETSc.Vec:

@@ -71,6 +71,8 @@ class ContactStepSolver:
     def __init__(self, comm, a_const: PETSc.Mat, contact_pattern, law):
         self.comm, self.a_const, self.law = comm, a_const, law
         self.jacobian = a_const.duplicate(copy=True)
+        # GAMG needs the rigid-body modes on the matrix it is built from
+        self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
         self.b = a_const.createVecRight()
         self.smooth = a_const.createVecRight()  # A u - b at the last residual evaluation
         self.factorizations = 0
