@@ -48,7 +48,7 @@ def run_sweep(comm, scene_source: str, vary: list[str], sets: list[str], out: st
         if comm.rank == 0:
             print(f"  case {i + 1}/{len(cases)}: " + _format_row(row), flush=True)
     if comm.rank == 0:
-        _write_csv(out_dir / "sweep.csv", rows)
+        write_csv(out_dir / "sweep.csv", rows)
         _plot(out_dir / "error_vs_time.png", rows)
         print(rate_table(rows, [key for key, _ in axes]))
         print(f"sweep: {out_dir}/sweep.csv, error_vs_time.png")
@@ -84,7 +84,8 @@ def _format_row(row: dict) -> str:
     )
 
 
-def _write_csv(path: Path, rows: list[dict]) -> None:
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """Rows (dicts with the same keys) as a CSV file with a header line."""
     with open(path, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()

@@ -11,14 +11,13 @@ not re-measured here.
     .venv/bin/python scripts/bench_accuracy_time.py [--repeats 3] [--out results/]
 """
 
-import argparse
-import csv
 import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import benchlib
 import petsc4py
 
 import parefg  # noqa: F401  (PETSC_DIR)
@@ -63,9 +62,7 @@ def measure(comm, overrides, repeats):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", default="results")
+    parser = benchlib.parser(__doc__, repeats=3)
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     rows = []
@@ -111,12 +108,7 @@ def main():
                 speedup = seconds / best["median_s"]
                 ours = f"{best['case']}: {best['median_s']:.2f} s ({speedup:.1f}x faster)"
             print(f"  H1 <= {target:g}: GetFEM {seconds} s ({setting}); parefg {ours}")
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        with open(out / f"bench_accuracy_time_np{comm.size}.csv", "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        benchlib.write_csv(args.out, f"bench_accuracy_time_np{comm.size}.csv", rows)
 
 
 if __name__ == "__main__":

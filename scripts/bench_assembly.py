@@ -8,11 +8,9 @@ prints a markdown table and writes results/bench_assembly_np<ranks>.csv.
 Usage: [mpirun -n 2] .venv/bin/python scripts/bench_assembly.py [--repeats N]
 """
 
-import argparse
-import csv
 import time
-from pathlib import Path
 
+import benchlib
 import numpy as np
 from mpi4py import MPI
 
@@ -42,8 +40,7 @@ def bench_case(comm, degree, h, repeats):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
+    parser = benchlib.parser(__doc__, repeats=3)
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     rows = [bench_case(comm, degree, h, args.repeats) for degree, h in CASES]
@@ -60,12 +57,7 @@ def main():
             f"| {r['ranks']} | {r['degree']} | 1/{round(1 / r['h'])} | {r['n_dofs']} | {r['nnz']} "
             f"| {r['mesh']:.3f} | {r['mls']:.3f} | {r['assembly']:.3f} | {r['nnz_per_s']:.3g} |"
         )
-    out = Path("results")
-    out.mkdir(exist_ok=True)
-    with open(out / f"bench_assembly_np{comm.size}.csv", "w", newline="") as stream:
-        writer = csv.DictWriter(stream, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    benchlib.write_csv(args.out, f"bench_assembly_np{comm.size}.csv", rows)
 
 
 if __name__ == "__main__":

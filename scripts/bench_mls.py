@@ -9,11 +9,9 @@ writes results/bench_mls.csv.
 Usage: .venv/bin/python scripts/bench_mls.py [--repeats N] [--h H]
 """
 
-import argparse
-import csv
 import time
-from pathlib import Path
 
+import benchlib
 import numpy as np
 from mpi4py import MPI
 
@@ -55,8 +53,7 @@ def bench_case(cloud, degree, support, order, backend, repeats):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5)
+    parser = benchlib.parser(__doc__, repeats=5)
     parser.add_argument("--h", type=float, default=1 / 64)
     args = parser.parse_args()
     cloud = build_node_cloud(MPI.COMM_SELF, {"shape": "square"}, args.h)
@@ -77,12 +74,7 @@ def main():
             f"{row['search_s']:.3f} | {row['evaluate_s']:.3f} | {row['points_per_s']:.3g} | "
             f"{1e6 / row['points_per_s']:.2f} |"
         )
-    out = Path("results")
-    out.mkdir(exist_ok=True)
-    with open(out / "bench_mls.csv", "w", newline="") as stream:
-        writer = csv.DictWriter(stream, fieldnames=COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
+    benchlib.write_csv(args.out, "bench_mls.csv", [{c: row[c] for c in COLUMNS} for row in rows])
 
 
 if __name__ == "__main__":

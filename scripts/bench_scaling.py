@@ -9,8 +9,6 @@ Prints markdown tables and writes results/bench_scaling.csv.
     .venv/bin/python scripts/bench_scaling.py [--h 0.0125,0.00625,0.003125] [--repeats 3]
 """
 
-import argparse
-import csv
 import json
 import os
 import statistics
@@ -18,6 +16,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+import benchlib
 
 PAREFG = str(Path(sys.executable).with_name("parefg"))
 PHASES = ("mesh", "mls", "assembly", "factorization", "solve", "output", "total")
@@ -49,10 +49,8 @@ def run(ranks: int, h: float, out: Path) -> dict:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = benchlib.parser(__doc__, repeats=3)
     parser.add_argument("--h", default="0.0125,0.00625,0.003125")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", default="results")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -86,11 +84,7 @@ def main():
     print("|---|---|---|")
     for one, two in zip(rows[0::2], rows[1::2], strict=True):
         print(f"| {one['dofs']} | {one['peak_rss_mb']:.0f} | {two['peak_rss_mb']:.0f} |")
-    Path(args.out).mkdir(parents=True, exist_ok=True)
-    with open(Path(args.out) / "bench_scaling.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    benchlib.write_csv(args.out, "bench_scaling.csv", rows)
 
 
 if __name__ == "__main__":

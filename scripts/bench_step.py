@@ -9,13 +9,11 @@ Newton iterations and factorizations; writes results/bench_step_np<P>.csv.
     mpirun -n 2 .venv/bin/python scripts/bench_step.py
 """
 
-import argparse
-import csv
 import statistics
 import sys
 import time
-from pathlib import Path
 
+import benchlib
 import petsc4py
 
 import parefg  # noqa: F401  (PETSC_DIR)
@@ -59,9 +57,7 @@ def step_times(comm, overrides):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", default="results")
+    parser = benchlib.parser(__doc__, repeats=3)
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     rows = []
@@ -97,11 +93,7 @@ def main():
                 f"{1e3 * r['floor_solve_s']:.2f} | {r['ratio']:.2f} | {r['newton_per_step']:.2f} "
                 f"| {r['factorizations']} / {r['steps']} |"
             )
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        with open(Path(args.out) / f"bench_step_np{comm.size}.csv", "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        benchlib.write_csv(args.out, f"bench_step_np{comm.size}.csv", rows)
 
 
 if __name__ == "__main__":
