@@ -4,7 +4,7 @@ Rank 0 builds the domain with the gmsh Python API, meshes it at target spacing
 h and turns the mesh into a :class:`NodeCloud`: the EFG nodes (the mesh
 vertices), the background integration cells (quadrilaterals and/or triangles,
 counter-clockwise) and the boundary segments tagged with the boundary part they
-belong to; optionally its interior nodes are jittered (:func:`jitter_cloud`).
+belong to; optionally its interior nodes are jittered (:mod:`parefg.jitter`).
 The cloud is then broadcast, so every rank holds the same arrays.
 
 Each domain shape has one builder, registered by name in ``DOMAIN_BUILDERS``.
@@ -14,7 +14,6 @@ each boundary part; meshing and extraction are shared.
 
 from __future__ import annotations
 
-import dataclasses
 import inspect
 import math
 import os
@@ -80,7 +79,9 @@ class NodeCloud:
         return len(self.coords)
 
 
-def build_node_cloud(comm, domain: dict, h: float, cells: str = "quad") -> NodeCloud:
+def build_node_cloud(
+    comm, domain: dict, h: float, cells: str = "quad", jitter: float = 0.0, seed: int = 0
+) -> NodeCloud:
     """Mesh a domain with gmsh on rank 0 and broadcast the node cloud.
 
     Collective.  Any failure on rank 0 (bad geometry, unreadable .geo, unknown
@@ -92,19 +93,23 @@ def build_node_cloud(comm, domain: dict, h: float, cells: str = "quad") -> NodeC
     comm : mpi4py communicator
     domain : dict
         The scene's ``[domain]`` table: ``shape`` = "square" | "rectangle" |
-        "z" | "polygon" | "geo" and that shape's parameters; optional
-        ``jitter`` and ``seed`` (the scene's ``discretization.jitter`` and
-        ``.seed``) perturb the interior nodes (:func:`jitter_cloud`).
+        "z" | "polygon" | "geo" and that shape's parameters.
     h : float
         Target node spacing (> 0).
     cells : {"quad", "tri"}
         Background cell type; "quad" may leave a few triangles on unstructured
         meshes.
+    jitter, seed : float, int
+        The scene's ``discretization.jitter`` and ``.seed``: interior nodes move
+        by at most jitter c_I (:func:`parefg.jitter.jitter_cloud`); 0 keeps the mesh nodes.
     """
+    # Imported here: parefg.jitter builds on this module's NodeCloud and node_spacing.
+    from parefg.jitter import jitter_cloud
+
     cloud, failure = None, None
     if comm.rank == 0:
         try:
-            cloud = mesh_domain(domain, h, cells)
+            cloud = jitter_cloud(mesh_domain(domain, h, cells), jitter, seed)
         except InputError as exc:
             failure = ("input", str(exc))
         except Exception as exc:  # a defect: still end every rank, not only rank 0
@@ -150,7 +155,7 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad") -> NodeCloud:
         raise InputError(f"domain: gmsh failed: {exc}") from None
     finally:
         gmsh.finalize()
-    return jitter_cloud(cloud, domain.get("jitter", 0.0), domain.get("seed", 0))
+    return cloud
 
 
 def _gmsh_initialize(gmsh) -> None:
@@ -450,70 +455,3 @@ def node_spacing(coords: np.ndarray, quads: np.ndarray, triangles: np.ndarray) -
     total = np.bincount(edges.ravel(), weights=np.repeat(lengths, 2), minlength=len(coords))
     count = np.bincount(edges.ravel(), minlength=len(coords))
     return total / count
-
-
-# --------------------------------------------------------------------------- jittered clouds
-
-MAX_JITTER = 0.45  # fraction of the local spacing c_I
-JITTER_ROUNDS = 20  # redraws of the nodes of folded cells; the last one restores them
-
-
-def jitter_cloud(cloud: NodeCloud, jitter: float, seed: int = 0) -> NodeCloud:
-    """The cloud with every interior node moved by a seeded random offset (not collective).
-
-    x_I <- x_I + jitter c_I r_I with r_I uniform in [-1, 1]^2, drawn from
-    ``numpy.random.default_rng(seed)`` for all nodes in cloud order; c_I is the
-    local spacing (= h on a uniform grid), recomputed after the move.  Boundary
-    nodes (ends of boundary segments) stay, so the domain, its parts and its
-    area are unchanged.  Offsets of up to 0.45 h can fold a cell (two
-    neighbours each moving 0.45 h across their common edge), so the nodes of
-    folded cells draw again, each round with offsets scaled down by
-    1 - round / JITTER_ROUNDS, until no cell folds: the result stays
-    deterministic and every offset stays within jitter c_I.
-
-    Raises
-    ------
-    InputError
-        ``jitter`` outside [0, MAX_JITTER], or a cell still folded after
-        JITTER_ROUNDS (a triangle, or a quadrilateral corner where the
-        bilinear map's Jacobian, the corner's cross product, is <= 0).
-    """
-    if not 0.0 <= jitter <= MAX_JITTER:
-        raise InputError(f"discretization.jitter = {jitter}: must be in 0..{MAX_JITTER}")
-    if jitter == 0.0:
-        return cloud
-    rng = np.random.default_rng(seed)
-    movable = np.ones(cloud.n_nodes, dtype=bool)
-    movable[np.unique(cloud.segments)] = False
-    step = jitter * cloud.spacing[:, None] * movable[:, None]  # (n_nodes, 1): 0 on the boundary
-    coords = cloud.coords + step * rng.uniform(-1.0, 1.0, size=cloud.coords.shape)  # (N, 2)
-    for attempt in range(1, JITTER_ROUNDS + 1):
-        folded = _folded_cells(coords, cloud.quads, cloud.triangles)
-        if not len(folded):
-            break
-        # Redraw only the nodes of folded cells, with shrinking offsets (0 in the last round).
-        redraw = np.unique(np.concatenate(folded))
-        scale = 1.0 - attempt / JITTER_ROUNDS
-        offsets = rng.uniform(-1.0, 1.0, size=(len(redraw), 2))  # (n_redraw, 2)
-        coords[redraw] = cloud.coords[redraw] + scale * step[redraw] * offsets
-    folded = _folded_cells(coords, cloud.quads, cloud.triangles)
-    if len(folded):
-        raise InputError(
-            f"discretization.jitter = {jitter} (seed {seed}) folds {len(folded)} mesh cell(s), "
-            f"first near {np.round(coords[folded[0]].mean(axis=0), 6).tolist()}: "
-            "use a smaller discretization.jitter or a finer, more regular mesh"
-        )
-    spacing = node_spacing(coords, cloud.quads, cloud.triangles)
-    return dataclasses.replace(cloud, coords=coords, spacing=spacing)
-
-
-def _folded_cells(coords, quads, triangles) -> list[np.ndarray]:
-    """Corner lists of the cells with a non-positive corner cross product."""
-    folded = []
-    for cells in (quads, triangles):
-        corners = coords[cells]  # (n_cells, n_corners, 2)
-        forward = np.roll(corners, -1, axis=1) - corners
-        backward = np.roll(corners, 1, axis=1) - corners
-        cross = forward[..., 0] * backward[..., 1] - forward[..., 1] * backward[..., 0]
-        folded.extend(cells[np.any(cross <= 0, axis=1)])
-    return folded

@@ -135,7 +135,9 @@ class _Builder:
     def build(self) -> Discretization:
         comm, scene = self.comm, self.scene
         with phase(self.timings, "mesh"):
-            cloud = build_node_cloud(comm, scene.domain, scene.h, scene.cells)
+            cloud = build_node_cloud(
+                comm, scene.domain, scene.h, scene.cells, scene.jitter, scene.seed
+            )
             cloud, partition = partition_cloud(cloud, comm.size)
             self.cloud, self.partition = cloud, partition
             self.n_nodes = len(cloud.coords)

@@ -13,11 +13,12 @@ data the scene leaves out are derived from it by symbolic differentiation:
     u0 = u(., 0),  v0 = u_t(., 0).
 
 Derived data stay out of ``params`` (they follow from ``[exact]``), so loading
-the effective scene again gives the same scene.
+the effective scene again gives the same scene.  The schema (sections, keys,
+defaults, checks) lives in :mod:`parefg.scene_schema`; its public names are
+re-exported here.
 """
 
 import copy
-import math
 import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -28,7 +29,52 @@ import sympy
 
 from parefg.errors import InputError
 from parefg.expressions import SYMBOLS, compile_field, parse_expression
-from parefg.geometry import MAX_JITTER
+from parefg.scene_schema import (
+    BOUNDARY_KEYS,
+    CELLS,
+    DEFAULT_QUADRATURE,
+    DEFAULT_SUPPORT,
+    DOMAIN_SHAPES,
+    MAX_STEPS,
+    OUTPUT_FIELDS,
+    PENALTY_KINDS,
+    POSITIVE,
+    SCHEMES,
+    SECTIONS,
+    STEP_TOLERANCE,
+    TOP_LEVEL_KEYS,
+    WEIGHTS,
+    elastic_constants,
+    step_count,
+    validate,
+)
+
+__all__ = [
+    "BOUNDARY_KEYS",
+    "CELLS",
+    "DEFAULT_QUADRATURE",
+    "DEFAULT_SUPPORT",
+    "DOMAIN_SHAPES",
+    "MAX_STEPS",
+    "OUTPUT_FIELDS",
+    "PENALTY_KINDS",
+    "POSITIVE",
+    "SCENES_DIR",
+    "SCHEMES",
+    "SECTIONS",
+    "STEP_TOLERANCE",
+    "TOP_LEVEL_KEYS",
+    "WEIGHTS",
+    "BoundaryCondition",
+    "ExactSolution",
+    "Field",
+    "Scene",
+    "builtin_scenes",
+    "elastic_constants",
+    "load_scene",
+    "step_count",
+    "validate",
+]
 
 SCENES_DIR = Path(__file__).with_name("scenes")
 
@@ -140,7 +186,7 @@ def load_scene(source: str, overrides: Sequence[str] = ()) -> Scene:
     where = f"scene {name}"
     for text in overrides:
         _apply_override(raw, text, where)
-    params, part_names = _validate(where, raw, name, source_dir)
+    params, part_names = validate(where, raw, name, source_dir)
     return _build(where, params, part_names, source_dir)
 
 
@@ -200,7 +246,7 @@ def _fields(where: str, key: str, values: list, args=("x", "y", "t")) -> list[sy
 def _build(where: str, params: dict, part_names: list[str], source_dir: Path) -> Scene:
     """Turn validated params into a Scene with callables."""
     disc, time, penalty = params["discretization"], params["time"], params["penalty"]
-    E, nu, lam, mu = _elastic_constants(params["material"])
+    E, nu, lam, mu = elastic_constants(params["material"])
     rho = params["material"]["rho"]
     mechanics = None
     if "exact" in params:
@@ -210,7 +256,7 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         name=params["name"],
         params=params,
         source_dir=source_dir,
-        domain=_cloud_description(params),
+        domain=copy.deepcopy(params["domain"]),
         part_names=list(part_names),
         **{key: disc[key] for key in ("h", "degree", "weight", "support", "quadrature", "cells")},
         jitter=disc.get("jitter", 0.0),
@@ -221,7 +267,7 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         mu=mu,
         rho=rho,
         **{key: time[key] for key in ("scheme", "T", "dt", "beta", "gamma")},
-        n_steps=_step_count(where, time),
+        n_steps=step_count(where, time),
         **{f"alpha_{kind}": penalty[f"alpha_{kind}"] for kind in PENALTY_KINDS},
         boundaries={
             name: _boundary(where, name, table, mechanics)
@@ -235,15 +281,6 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         output_fields=list(params["output"]["fields"]),
         solver_options=dict(params["solver"]),
     )
-
-
-def _cloud_description(params: dict) -> dict:
-    """The [domain] table, plus the node jitter and its seed when jitter > 0 (geometry's input)."""
-    domain = copy.deepcopy(params["domain"])
-    disc = params["discretization"]
-    if disc.get("jitter", 0.0) > 0:
-        domain.update(jitter=disc["jitter"], seed=disc.get("seed", 0))
-    return domain
 
 
 class _Mechanics:
@@ -345,380 +382,3 @@ def _is_zero(expr: sympy.Expr, field: Field) -> bool:
     if np.any(np.isfinite(values) & (values != 0)):
         return False
     return sympy.simplify(expr) == 0
-
-
-# ---------------------------------------------------------------------------
-# Schema: every section is read key by key; leftover keys are unknown.
-
-SECTIONS = (
-    "domain",
-    "discretization",
-    "material",
-    "time",
-    "penalty",
-    "boundary",
-    "initial",
-    "loads",
-    "exact",
-    "output",
-    "solver",
-)
-TOP_LEVEL_KEYS = ("name", "description")
-WEIGHTS = ("cubic", "quartic", "gaussian")
-CELLS = ("quad", "tri")
-SCHEMES = ("newmark", "static")
-OUTPUT_FIELDS = ("u", "v", "a", "von_mises", "contact")
-# dilation s per MLS degree m; measured: at m = 2, s = 3.2 cuts the H1 error at h = 1/32
-# five-fold against s = 2.6 (README, accuracy section)
-DEFAULT_SUPPORT = {1: 2.0, 2: 3.2, 3: 4.0}
-# Gauss points per cell direction: MLS shape functions are rational, so m >= 2 needs more
-DEFAULT_QUADRATURE = {1: 3, 2: 5, 3: 7}
-PENALTY_KINDS = ("dirichlet", "contact", "friction")
-STEP_TOLERANCE = 1e-9  # relative distance of T / dt from an integer
-MAX_STEPS = 10**9  # beyond this T / dt is a typo, and is no longer checked as an integer
-
-_REQUIRED = object()
-
-
-def _show(value) -> str:
-    """A value as it appears in an error message: repr, one line, at most 60 characters."""
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _name(key: str) -> str:
-    """A key as it appears in an error message: as is if printable, else its repr (one line)."""
-    return key if key.isprintable() and len(key) <= 60 else _show(key)
-
-
-class _Table:
-    """One TOML table under validation: ``take`` each key, then ``finish``."""
-
-    def __init__(self, where: str, path: str, raw):
-        if not isinstance(raw, dict):
-            raise InputError(f"{where}: {path} = {_show(raw)}: must be a table")
-        self.where, self.path = where, path
-        self.raw = dict(raw)
-        self.out: dict = {}
-        self.allowed: list[str] = []
-
-    def fail(self, key: str, value, why: str) -> InputError:
-        return InputError(f"{self.where}: {self.path}.{_name(key)} = {_show(value)}: {why}")
-
-    def take(self, key: str, convert, default=_REQUIRED, check=None):
-        """Convert and check ``key``; a missing key gets ``default`` (None: stays absent)."""
-        self.allowed.append(key)
-        if key not in self.raw:
-            if default is _REQUIRED:
-                raise InputError(f"{self.where}: {self.path}.{key} is required")
-            if default is not None:
-                self.out[key] = default
-            return default
-        given = self.raw.pop(key)
-        value = convert(self, key, given)
-        if check is not None and not check[0](value):
-            raise self.fail(key, given, check[1])
-        self.out[key] = value
-        return value
-
-    def finish(self) -> dict:
-        """The effective table; any key not taken is an error listing the allowed ones."""
-        for key in self.raw:
-            allowed = ", ".join(self.allowed)
-            raise InputError(
-                f"{self.where}: {self.path}.{_name(key)}: unknown key (allowed: {allowed})"
-            )
-        return self.out
-
-
-def _number(table: _Table, key: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise table.fail(key, value, "must be a finite number")
-    try:
-        number = float(value)
-    except OverflowError:  # TOML integers have no size limit in tomllib
-        number = math.inf
-    if not math.isfinite(number):
-        raise table.fail(key, value, "must be a finite number")
-    return number
-
-
-def _integer(table: _Table, key: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise table.fail(key, value, "must be an integer")
-    return value
-
-
-def _choice(*options: str):
-    def convert(table: _Table, key: str, value) -> str:
-        if not isinstance(value, str) or value not in options:
-            raise table.fail(key, value, "must be one of " + ", ".join(map(repr, options)))
-        return value
-
-    return convert
-
-
-def _string(table: _Table, key: str, value) -> str:
-    if not isinstance(value, str) or not value:
-        raise table.fail(key, value, "must be a non-empty string")
-    return value
-
-
-def _names(table: _Table, key: str, value) -> list[str]:
-    """A list of names; a leading '_' is reserved for parefg's own parts."""
-    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
-        raise table.fail(key, value, "must be a list of non-empty strings")
-    if any(v.startswith("_") for v in value):
-        raise table.fail(key, value, "names must not start with '_'")
-    return list(value)
-
-
-def _expression(table: _Table, key: str, value):
-    if isinstance(value, bool) or not isinstance(value, int | float | str):
-        raise table.fail(key, value, "must be a number or an expression string in x, y, t")
-    return value
-
-
-def _vector(table: _Table, key: str, value) -> list:
-    if not isinstance(value, list) or len(value) != 2:
-        raise table.fail(key, value, "must be a list of two numbers or expression strings")
-    return [_expression(table, f"{key}[{i}]", v) for i, v in enumerate(value)]
-
-
-def _pair(table: _Table, key: str, value) -> list[float]:
-    if not isinstance(value, list) or len(value) != 2:
-        raise table.fail(key, value, "must be a list of two numbers")
-    return [_number(table, key, v) for v in value]
-
-
-def _points(table: _Table, key: str, value) -> list[list[float]]:
-    if not isinstance(value, list) or len(value) < 3:
-        raise table.fail(key, value, "must be a list of at least 3 points [x, y]")
-    return [_pair(table, key, v) for v in value]
-
-
-POSITIVE = (lambda v: v > 0, "must be > 0")
-
-
-def _between(low, high):
-    return (lambda v: low <= v <= high, f"must be in {low}..{high}")
-
-
-def _square_parts(table: _Table, source_dir: Path) -> list[str]:
-    return ["bottom", "right", "top", "left"]
-
-
-def _rectangle_parts(table: _Table, source_dir: Path) -> list[str]:
-    table.take("size", _pair, _REQUIRED, (lambda v: min(v) > 0, "must be two numbers > 0"))
-    table.take("origin", _pair, [0.0, 0.0])
-    return ["bottom", "right", "top", "left"]
-
-
-def _z_parts(table: _Table, source_dir: Path) -> list[str]:
-    return ["bottom", "top", "sides"]
-
-
-def _polygon_parts(table: _Table, source_dir: Path) -> list[str]:
-    """Edge i runs from vertex i to i+1; equal edge names merge into one part."""
-    vertices = table.take("vertices", _points)
-    names = table.take("edge_names", _names)
-    if len(names) != len(vertices):
-        raise table.fail("edge_names", names, f"needs one name per edge ({len(vertices)})")
-    xy = np.array(vertices)  # (n_vertices, 2)
-    # Shoelace formula: positive signed area <=> counter-clockwise.
-    area = 0.5 * np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1])
-    if not area > 0:
-        raise table.fail("vertices", vertices, "must run counter-clockwise (positive area)")
-    return list(dict.fromkeys(names))
-
-
-def _geo_parts(table: _Table, source_dir: Path) -> list[str]:
-    """A .geo file (relative to the scene file) and its physical curve names."""
-    given = table.take("file", _string)
-    path = (source_dir / given).resolve()
-    if not path.is_file():
-        raise table.fail("file", given, f"no such file ({path})")
-    table.out["file"] = str(path)
-    distinct = (lambda v: 0 < len(v) == len(set(v)), "must be a non-empty list of distinct names")
-    return table.take("parts", _names, _REQUIRED, distinct)
-
-
-#: domain shape -> reader of its keys, returning the names of its boundary parts
-DOMAIN_SHAPES = {
-    "square": _square_parts,
-    "rectangle": _rectangle_parts,
-    "z": _z_parts,
-    "polygon": _polygon_parts,
-    "geo": _geo_parts,
-}
-
-
-def _read_domain(table: _Table, source_dir: Path) -> list[str]:
-    shape = table.take("shape", _choice(*DOMAIN_SHAPES), "square")
-    return DOMAIN_SHAPES[shape](table, source_dir)
-
-
-def _read_discretization(table: _Table) -> None:
-    table.take("h", _number, 0.1, POSITIVE)
-    degree = table.take("degree", _integer, 1, _between(1, 3))
-    table.take("weight", _choice(*WEIGHTS), "cubic")
-    table.take("support", _number, DEFAULT_SUPPORT[degree], (lambda v: v > 1, "must be > 1"))
-    table.take("quadrature", _integer, DEFAULT_QUADRATURE.get(degree, 5), _between(1, 10))
-    table.take("cells", _choice(*CELLS), "quad")
-    # Absent stays absent (no jitter): the effective scene of an unjittered run is unchanged.
-    table.take("jitter", _number, None, _between(0.0, MAX_JITTER))
-    table.take("seed", _integer, None, (lambda v: 0 <= v < 2**63, "must be in 0..2**63 - 1"))
-
-
-def _read_material(table: _Table) -> None:
-    """(E > 0, -1 < nu < 0.5) or (mu > 0, lam > -2 mu / 3), never both; default E = 1, nu = 0.3."""
-    lame = {"lam", "mu"} & table.raw.keys()
-    if lame and {"E", "nu"} & table.raw.keys():
-        raise InputError(f"{table.where}: material: give E and nu, or lam and mu, not both")
-    if lame:
-        mu = table.take("mu", _number, _REQUIRED, POSITIVE)
-        # lam > -2 mu / 3 <=> E > 0 and nu > -1, the same range as the (E, nu) pair.
-        table.take("lam", _number, _REQUIRED, (lambda v: 3 * v > -2 * mu, "must be > -2 mu / 3"))
-    else:
-        table.take("E", _number, 1.0, POSITIVE)
-        table.take("nu", _number, 0.3, (lambda v: -1 < v < 0.5, "must be in (-1, 0.5)"))
-    table.take("rho", _number, 1.0, POSITIVE)
-    table.allowed = ["E", "nu", "lam", "mu", "rho"]
-    if not all(map(math.isfinite, _elastic_constants(table.out))):
-        raise InputError(f"{table.where}: material: {table.out} gives non-finite E, nu, lam or mu")
-
-
-def _elastic_constants(material: dict) -> tuple[float, float, float, float]:
-    """(E, nu, lam, mu), plane strain: lam = E nu / ((1 + nu)(1 - 2 nu)), mu = E / (2 (1 + nu))."""
-    if "lam" in material:
-        lam, mu = material["lam"], material["mu"]
-        return mu * (3 * lam + 2 * mu) / (lam + mu), lam / (2 * (lam + mu)), lam, mu
-    E, nu = material["E"], material["nu"]
-    return E, nu, E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
-
-
-def _read_time(table: _Table) -> None:
-    table.take("scheme", _choice(*SCHEMES), "newmark")
-    T = table.take("T", _number, 1.0, POSITIVE)
-    table.take("dt", _number, 0.1, (lambda v: 0 < v <= T, f"must be > 0 and <= time.T = {T}"))
-    table.take("beta", _number, 0.5, (lambda v: 0 < v <= 1, "must be in (0, 1]"))
-    table.take("gamma", _number, 0.5, (lambda v: 0.5 <= v <= 1, "must be in [0.5, 1]"))
-    _step_count(table.where, table.out)
-
-
-def _step_count(where: str, time: dict) -> int:
-    """n_steps = T / dt, which must be an integer to within STEP_TOLERANCE."""
-    ratio = time["T"] / time["dt"]
-    if not ratio <= MAX_STEPS:
-        raise InputError(
-            f"{where}: time.dt = {time['dt']}: T / dt = {ratio:.6g} steps (at most {MAX_STEPS:.0e})"
-        )
-    if abs(ratio - round(ratio)) > STEP_TOLERANCE * ratio:
-        raise InputError(
-            f"{where}: time.dt = {time['dt']}: T / dt = {ratio:.6g} must be an integer"
-        )
-    return round(ratio)
-
-
-def _read_penalty(table: _Table, E: float, h: float) -> None:
-    """alpha defaults to 1e4 E / h; the three specific factors default to alpha.
-
-    Measured (static square, m = 1, 2, h = 1/8 .. 1/32): the error is flat for alpha h / E
-    in 1e3 .. 1e5 and grows above ~1e6, where the Dirichlet penalty over-constrains the
-    MLS trace (README, accuracy section).
-    """
-    default = 1e4 * E / h
-    if "alpha" not in table.raw and not math.isfinite(default):
-        raise table.fail("alpha", default, "the default 1e4 E / h overflows: give penalty.alpha")
-    alpha = table.take("alpha", _number, default, POSITIVE)
-    for kind in PENALTY_KINDS:
-        table.take(f"alpha_{kind}", _number, alpha, POSITIVE)
-
-
-#: boundary type -> (key, converter, default without [exact], derived from [exact]?)
-BOUNDARY_KEYS = {
-    "dirichlet": (("value", _vector, [0, 0], True),),
-    "neumann": (("traction", _vector, [0, 0], True),),
-    "contact": (("gap", _expression, 0, False), ("friction", _expression, 0, True)),
-}
-
-
-def _read_boundaries(where: str, raw, part_names: list[str], has_exact: bool) -> dict:
-    if not isinstance(raw, dict):
-        raise InputError(f"{where}: boundary = {_show(raw)}: must be a table of [boundary.NAME]")
-    boundaries = {}
-    for name, entry in raw.items():
-        if name not in part_names:
-            known = ", ".join(part_names)
-            raise InputError(
-                f"{where}: boundary.{_name(name)}: unknown boundary part (allowed: {known})"
-            )
-        table = _Table(where, f"boundary.{name}", entry)
-        kind = table.take("type", _choice(*BOUNDARY_KEYS))
-        for key, convert, zero, derived in BOUNDARY_KEYS[kind]:
-            table.take(key, convert, None if derived and has_exact else copy.deepcopy(zero))
-        boundaries[name] = table.finish()
-    return boundaries
-
-
-def _read_vectors(table: _Table, keys: Sequence[str], has_exact: bool) -> None:
-    """2-vector expressions defaulting to zero, or (absent) to data derived from [exact]."""
-    for key in keys:
-        table.take(key, _vector, None if has_exact else [0, 0])
-
-
-def _read_output(table: _Table) -> None:
-    table.take("every", _integer, 0, (lambda v: v >= 0, "must be >= 0"))
-    known = (lambda v: set(v) <= set(OUTPUT_FIELDS), "allowed: " + ", ".join(OUTPUT_FIELDS))
-    table.take("fields", _names, list(OUTPUT_FIELDS), known)
-
-
-def _read_solver(where: str, raw) -> dict[str, str]:
-    """PETSc options (name without '-') -> value as on a command line ("" for a bare flag)."""
-    table = _Table(where, "solver", raw)
-    options = {}
-    for key, value in table.raw.items():
-        name = key.lstrip("-")
-        if not name or not all(c.isalnum() or c == "_" for c in name):
-            raise InputError(f"{where}: solver.{_name(key)}: not a PETSc option name")
-        if isinstance(value, bool):
-            # A bare "-ksp_monitor" is PETSc's "true"; "-ksp_monitor true" would name a viewer.
-            options[name] = "" if value else "false"
-        elif isinstance(value, int | float | str):
-            options[name] = str(value)
-        else:
-            raise table.fail(key, value, "must be a string, number or boolean")
-    return options
-
-
-def _validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, list[str]]:
-    """The effective params (defaults filled) and the domain's boundary part names."""
-    for key, value in raw.items():
-        if key in TOP_LEVEL_KEYS and not isinstance(value, str):
-            raise InputError(f"{where}: {key} = {_show(value)}: must be a string")
-        if key not in SECTIONS and key not in TOP_LEVEL_KEYS:
-            allowed = ", ".join(SECTIONS)
-            raise InputError(f"{where}: [{_name(key)}]: unknown section (allowed: {allowed})")
-    params: dict = {"name": name, **{key: raw[key] for key in TOP_LEVEL_KEYS if key in raw}}
-    has_exact = "exact" in raw
-
-    def section(key: str, reader, *args):
-        table = _Table(where, key, raw.get(key, {}))
-        result = reader(table, *args)
-        params[key] = table.finish()
-        return result
-
-    part_names = section("domain", _read_domain, source_dir)
-    section("discretization", _read_discretization)
-    section("material", _read_material)
-    section("time", _read_time)
-    E = _elastic_constants(params["material"])[0]
-    section("penalty", _read_penalty, E, params["discretization"]["h"])
-    params["boundary"] = _read_boundaries(where, raw.get("boundary", {}), part_names, has_exact)
-    section("initial", _read_vectors, ("u", "v"), has_exact)
-    section("loads", _read_vectors, ("f",), has_exact)
-    if has_exact:
-        section("exact", lambda table: table.take("u", _vector))
-    section("output", _read_output)
-    params["solver"] = _read_solver(where, raw.get("solver", {}))
-    return params, part_names

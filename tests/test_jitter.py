@@ -12,7 +12,8 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry import NodeCloud, build_node_cloud, jitter_cloud, node_spacing
+from parefg.geometry import NodeCloud, build_node_cloud, node_spacing
+from parefg.jitter import jitter_cloud
 from parefg.scene import load_scene
 
 COMM = MPI.COMM_WORLD
@@ -37,22 +38,22 @@ def boundary_mask(cloud):
 def grids():
     """{h: (plain cloud, cloud jittered by 20 %)} on the unit square."""
     return {
-        h: (build_node_cloud(COMM, SQUARE, h), build_node_cloud(COMM, {**SQUARE, "jitter": 0.2}, h))
+        h: (build_node_cloud(COMM, SQUARE, h), build_node_cloud(COMM, SQUARE, h, jitter=0.2))
         for h in (1 / 8, 1 / 16)
     }
 
 
 def test_jitter_is_deterministic_and_seeded():
-    first = build_node_cloud(COMM, {**SQUARE, "jitter": 0.3, "seed": 7}, 1 / 8)
-    again = build_node_cloud(COMM, {**SQUARE, "jitter": 0.3, "seed": 7}, 1 / 8)
-    other = build_node_cloud(COMM, {**SQUARE, "jitter": 0.3, "seed": 8}, 1 / 8)
+    first = build_node_cloud(COMM, SQUARE, 1 / 8, jitter=0.3, seed=7)
+    again = build_node_cloud(COMM, SQUARE, 1 / 8, jitter=0.3, seed=7)
+    other = build_node_cloud(COMM, SQUARE, 1 / 8, jitter=0.3, seed=8)
     np.testing.assert_array_equal(first.coords, again.coords)
     np.testing.assert_array_equal(first.spacing, again.spacing)
     assert np.abs(first.coords - other.coords).max() > 0.01
 
 
 def test_every_rank_gets_the_same_jittered_cloud():
-    cloud = build_node_cloud(COMM, {**SQUARE, "jitter": 0.4}, 1 / 16)
+    cloud = build_node_cloud(COMM, SQUARE, 1 / 16, jitter=0.4)
     digest = hashlib.sha256(cloud.coords.tobytes() + cloud.spacing.tobytes()).hexdigest()
     assert len(set(COMM.allgather(digest))) == 1
 
@@ -76,7 +77,7 @@ def test_boundary_fixed_interior_moved_by_at_most_jitter_h(grids, h):
 
 def test_area_preserved_cells_unfolded_spacing_recomputed():
     plain = build_node_cloud(COMM, SQUARE, 1 / 16)
-    cloud = build_node_cloud(COMM, {**SQUARE, "jitter": 0.45, "seed": 3}, 1 / 16)
+    cloud = build_node_cloud(COMM, SQUARE, 1 / 16, jitter=0.45, seed=3)
     assert np.all(corner_cross(cloud.coords, cloud.quads) > 0)
     corners = cloud.coords[cloud.quads]
     x, y = corners[..., 0], corners[..., 1]
@@ -117,7 +118,7 @@ def test_folded_cloud_is_an_input_error_naming_the_jitter():
 def test_scene_jitter_key():
     scene = load_scene("square", ["discretization.jitter=0.3", "discretization.seed=5"])
     assert (scene.jitter, scene.seed) == (0.3, 5)
-    assert scene.domain == {"shape": "square", "jitter": 0.3, "seed": 5}
+    assert scene.domain == {"shape": "square"}
     plain = load_scene("square")
     assert (plain.jitter, plain.seed, plain.domain) == (0.0, 0, {"shape": "square"})
     assert "jitter" not in plain.params["discretization"]
