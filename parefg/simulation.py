@@ -34,7 +34,7 @@ class Simulation:
             if self.law is None:
                 self.solver = LinearStepSolver(comm, self.a_const)
             else:
-                self.solver = ContactStepSolver(comm, self.a_const, disc.contact_pattern, self.law)
+                self.solver = ContactStepSolver(comm, self.a_const, self.law)
         self.history: list[dict[str, float]] = []
         self.newton_iterations = 0
         self.linear_iterations = 0
@@ -193,7 +193,7 @@ class Simulation:
         self.linear_iterations += linear
         new = self.scheme.update(state, u, ut, vt)
         self._check_finite(new.u, t)
-        self._record(state, new, t, b, newton, linear)
+        self._record(state, new, t, newton, linear)
         return new
 
     def _check_finite(self, u: PETSc.Vec, t: float) -> None:
@@ -201,7 +201,7 @@ class Simulation:
         if self.comm.allreduce(bad):
             raise SolverError(f"non-finite displacement at t = {t:.6g}: the step diverged")
 
-    def _record(self, old: State, new: State, t, b, newton, linear) -> None:
+    def _record(self, old: State, new: State, t, newton, linear) -> None:
         """Per-step table row: iterations, active points and energies.
 
         Balance: kinetic + elastic + penalty-stored + dissipated - external work is

@@ -45,7 +45,7 @@ def configure_linear_solver(ksp: PETSc.KSP) -> None:
 class LinearStepSolver:
     """u = A^-1 b with one factorization reused by every step.  Collective."""
 
-    def __init__(self, comm, a_const: PETSc.Mat, near_null_space=None):
+    def __init__(self, comm, a_const: PETSc.Mat):
         self.a_const = a_const
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setOperators(a_const)
@@ -68,7 +68,7 @@ class LinearStepSolver:
 class ContactStepSolver:
     """Semismooth Newton (SNES) with the exact line search of SPEC 4.  Collective."""
 
-    def __init__(self, comm, a_const: PETSc.Mat, contact_pattern, law):
+    def __init__(self, comm, a_const: PETSc.Mat, law):
         self.comm, self.a_const, self.law = comm, a_const, law
         self.jacobian = a_const.duplicate(copy=True)
         # GAMG needs the rigid-body modes on the matrix it is built from
