@@ -67,8 +67,8 @@ class Simulation:
         return PETSc.NullSpace().createRigidBody(coordinates)
 
     # -- loads ---------------------------------------------------------------------
-    def loads(self, t: float, dirichlet: bool = True) -> PETSc.Vec:
-        """F(t) (body force and tractions) plus, if asked, the Dirichlet data alpha_D g_D(t)."""
+    def external_forces(self, t: float) -> PETSc.Vec:
+        """F(t): body force and Neumann tractions integrated against the shape functions."""
         disc, scene = self.disc, self.scene
         total = disc.create_vec()
         part = disc.create_vec()
@@ -81,12 +81,16 @@ class Simulation:
             nx, ny = points.normals.T
             points.integrate(scene.boundaries[name].traction(x, y, t, nx, ny).T, part)
             total.axpy(1.0, part)
-        for name in self.dirichlet_names if dirichlet else ():
-            points = disc.boundary[name]
-            x, y = points.points.T
-            points.integrate(scene.boundaries[name].value(x, y, t).T, part)
-            total.axpy(scene.alpha_dirichlet, part)
         return total
+
+    def _add_dirichlet_data(self, t: float, out: PETSc.Vec) -> None:
+        """out += alpha_D g_D(t), g_D = int_{Gamma_D} ubar(t) . phi_I."""
+        part = self.disc.create_vec()
+        for name in self.dirichlet_names:
+            points = self.disc.boundary[name]
+            x, y = points.points.T
+            points.integrate(self.scene.boundaries[name].value(x, y, t).T, part)
+            out.axpy(self.scene.alpha_dirichlet, part)
 
     # -- initial state ---------------------------------------------------------------
     def _project(self, field) -> PETSc.Vec:
@@ -117,13 +121,17 @@ class Simulation:
                 f"mass-matrix solve failed: KSP reason {self._mass_ksp.getConvergedReason()}"
             )
 
-    def initial_state(self) -> State:
-        """u_0, v_0 projected; a_0 from M a_0 = F_0 - (K + alpha_D G_D) u_0 - contact(u_0)."""
+    def initial_state(self, forces: PETSc.Vec) -> State:
+        """u_0, v_0 projected; a_0 from M a_0 = F_0 - (K + alpha_D G_D) u_0 - contact(u_0).
+
+        ``forces`` is F_0 = external_forces(0).
+        """
         u = self._project(self.scene.initial_u)
-        v = self._project(lambda x, y: self.scene.initial_v(x, y))
+        v = self._project(self.scene.initial_v)
         a = self.disc.create_vec()
         if self.scheme.dynamic:
-            rhs = self.loads(0.0)
+            rhs = forces.copy()
+            self._add_dirichlet_data(0.0, rhs)
             ku = self.disc.create_vec()
             self.disc.stiffness.mult(u, ku)
             rhs.axpy(-1.0, ku)
@@ -133,9 +141,9 @@ class Simulation:
                 self.law.set_time(0.0)
                 un, ut = self.law.kinematics(u)
                 self.law.slip = ut.copy()  # xi_0 = u_tau(0)
-                forces = self.disc.create_vec()
-                self.law.add_residual(forces, un, ut)
-                rhs.axpy(-1.0, forces)
+                contact_forces = self.disc.create_vec()
+                self.law.add_residual(contact_forces, un, ut)
+                rhs.axpy(-1.0, contact_forces)
             self._mass_solve(rhs, a)
         elif self.law is not None:
             self.law.slip = self.law.kinematics(u)[1]
@@ -143,8 +151,8 @@ class Simulation:
 
     def start(self) -> State:
         """Initial state, and the t = 0 row of the per-step table."""
-        state = self.initial_state()
-        self._last_forces = self.loads(0.0, dirichlet=False)
+        self._last_forces = self.external_forces(0.0)
+        state = self.initial_state(self._last_forces)
         self._dirichlet_previous = {}
         dirichlet_energy, _ = self._dirichlet_terms(state.u, 0.0)
         contact_energy = 0.0
@@ -168,7 +176,7 @@ class Simulation:
     def resume(self, state: State, step: int, last_row: dict) -> State:
         """Continue from a checkpointed state after ``step`` (see parefg.checkpoint)."""
         t = step * self.scheme.k
-        self._last_forces = self.loads(t, dirichlet=False)
+        self._last_forces = self.external_forces(t)
         self._dirichlet_previous = {}
         self._dirichlet_terms(state.u, t)
         self.history = [dict(last_row)]
@@ -179,7 +187,9 @@ class Simulation:
         """Advance from t_{n-1} to t_n = n k."""
         t = n * self.scheme.k
         ut, vt = self.scheme.predict(state)
-        b = self.loads(t)
+        forces = self.external_forces(t)
+        b = forces.copy()
+        self._add_dirichlet_data(t, b)
         if self.scheme.mass_coefficient:
             mu = self.disc.create_vec()
             self.disc.mass.mult(ut, mu)
@@ -193,7 +203,7 @@ class Simulation:
         self.linear_iterations += linear
         new = self.scheme.update(state, u, ut, vt)
         self._check_finite(new.u, t)
-        self._record(state, new, t, newton, linear)
+        self._record(state, new, t, forces, newton, linear)
         return new
 
     def _check_finite(self, u: PETSc.Vec, t: float) -> None:
@@ -201,7 +211,7 @@ class Simulation:
         if self.comm.allreduce(bad):
             raise SolverError(f"non-finite displacement at t = {t:.6g}: the step diverged")
 
-    def _record(self, old: State, new: State, t, newton, linear) -> None:
+    def _record(self, old: State, new: State, t, forces, newton, linear) -> None:
         """Per-step table row: iterations, active points and energies.
 
         Balance: kinetic + elastic + penalty-stored + dissipated - external work is
@@ -216,7 +226,6 @@ class Simulation:
             active = self.comm.allreduce(int(np.count_nonzero(un > self.law.gap)))
             contact_energy = self.law.normal_energy(un) + self.law.stored_friction_energy(ut)
         dirichlet_energy, anchor_work = self._dirichlet_terms(new.u, t)
-        forces = self.loads(t, dirichlet=False)
         work = previous.get("external_work", 0.0) + anchor_work
         work += self._load_work(old.u, new.u, forces)
         self.history.append(
