@@ -96,7 +96,7 @@ class ContactLaw:
 
     def forces(self, un, ut) -> tuple[np.ndarray, np.ndarray]:
         """Normal pressure p >= 0 and friction force f at the points."""
-        pressure = self.alpha_c * np.maximum(un - self.gap, 0.0)
+        pressure = self.pressure(un)
         if not self.has_friction:
             return pressure, np.zeros_like(ut)
         return pressure, np.clip(self.alpha_t * (ut - self.slip), -self.bound, self.bound)
@@ -150,10 +150,20 @@ class ContactLaw:
             local = local + self.tangent_op.T @ sp.diags(stick) @ self.tangent_op
         return owned_rows(self.comm, local.tocsr(), self.dof_ranges)
 
+    def _penetration(self, un) -> np.ndarray:
+        return np.maximum(un - self.gap, 0.0)  # (u_nu - s)^+
+
+    def pressure(self, un) -> np.ndarray:
+        """Normal pressure p = alpha_C (u_nu - s)^+ >= 0 at the points."""
+        return self.alpha_c * self._penetration(un)
+
+    def _normal_potential(self, un) -> np.ndarray:
+        """alpha_C/2 ((u_nu - s)^+)^2 at the points."""
+        return 0.5 * self.alpha_c * self._penetration(un) ** 2
+
     def energy(self, un, ut) -> float:
         """Penalty-contact plus friction potential, summed over all ranks.  Collective."""
-        normal = 0.5 * self.alpha_c * np.maximum(un - self.gap, 0.0) ** 2
-        local = np.dot(self.weights, normal)
+        local = np.dot(self.weights, self._normal_potential(un))
         if self.has_friction:
             local += np.dot(self.weights, self._friction_potential(ut - self.slip))
         return self.comm.allreduce(local, op=MPI.SUM)
@@ -165,7 +175,7 @@ class ContactLaw:
 
     def normal_energy(self, un) -> float:
         """alpha_C/2 ||(u_nu - s)^+||^2 on Gamma_C.  Collective."""
-        local = np.dot(self.weights, 0.5 * self.alpha_c * np.maximum(un - self.gap, 0.0) ** 2)
+        local = np.dot(self.weights, self._normal_potential(un))
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def stored_friction_energy(self, ut) -> float:

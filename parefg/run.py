@@ -88,7 +88,7 @@ def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
         un = law.kinematics(state.u)[0]
         contact_fields = {
             "gap": law.gap - un,
-            "normal_pressure": law.alpha_c * np.maximum(un - law.gap, 0.0),
+            "normal_pressure": law.pressure(un),
             "tangential_traction": law.step_friction,
             "status": law.step_status,
         }
