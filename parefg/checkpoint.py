@@ -17,7 +17,6 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-from mpi4py import MPI
 
 from parefg.errors import InputError
 from parefg.timestepping import State
@@ -47,8 +46,7 @@ def write_checkpoint(comm, path: Path, sim, state: State, step: int) -> None:
         for name in VECTORS
     }
     if sim.law is not None:
-        n_contact = comm.allreduce(int(disc.contact.rows.max(initial=-1)) + 1, op=MPI.MAX)
-        arrays["slip"] = _gather_rows(comm, disc.contact.rows, sim.law.slip, n_contact)
+        arrays["slip"] = _gather_rows(comm, disc.contact.rows, sim.law.slip, disc.n_contact)
     if comm.rank == 0:
         partial = path.with_name(path.name + ".partial")
         with h5py.File(partial, "w") as handle:

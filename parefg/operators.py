@@ -96,6 +96,7 @@ class Discretization:
     nodes: PointSet
     boundary: dict[str, PointSet] = field(default_factory=dict)  # by boundary-condition name
     contact: PointSet | None = None  # all Gamma_C points (every contact part)
+    n_contact: int = 0  # Gamma_C points on all ranks (contact.rows range over 0..n_contact-1)
     timings: dict[str, float] = field(default_factory=dict)
     condition_range: tuple[float, float] = (1.0, 1.0)  # min, max MLS moment condition number
 
@@ -131,6 +132,7 @@ class _Builder:
     def __init__(self, comm, scene):
         self.comm, self.scene = comm, scene
         self.timings = {"mesh": 0.0, "neighbours": 0.0, "mls": 0.0, "assembly": 0.0}
+        self.n_contact = 0
 
     def build(self) -> Discretization:
         comm, scene = self.comm, self.scene
@@ -198,6 +200,7 @@ class _Builder:
             nodes=nodes,
             boundary=boundary,
             contact=contact,
+            n_contact=self.n_contact,
             timings=self.timings,
             condition_range=(
                 comm.allreduce(conditions.min(), op=MPI.MIN),
@@ -290,6 +293,8 @@ class _Builder:
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
             quadrature, rows = self._boundary_quadrature(contact_parts)
+            on_contact = np.isin(cloud.segment_part, contact_parts)  # every rank's segments
+            self.n_contact = int(np.count_nonzero(on_contact)) * self.scene.quadrature
             shape = self._shape(quadrature.points, gradients=False)
             with phase(self.timings, "assembly"):
                 part_of_point = cloud.segment_part[quadrature.cell]

@@ -98,11 +98,6 @@ def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
 def _writer(comm, sim: Simulation, out_dir: Path, metadata: dict) -> ResultWriter:
     disc = sim.disc
     contact = disc.contact
-    n_contact = (
-        0
-        if contact is None
-        else comm.allreduce(int(contact.rows.max()) + 1 if len(contact.rows) else 0, op=MPI.MAX)
-    )
     return ResultWriter(
         comm,
         out_dir,
@@ -111,7 +106,7 @@ def _writer(comm, sim: Simulation, out_dir: Path, metadata: dict) -> ResultWrite
         n_nodes=disc.n_nodes,
         contact_coords=np.zeros((0, 2)) if contact is None else contact.points,
         contact_rows=np.zeros(0, dtype=np.int64) if contact is None else contact.rows,
-        n_contact=n_contact,
+        n_contact=disc.n_contact,
         metadata=metadata,
     )
 
@@ -154,7 +149,6 @@ def run_scene(
     else:
         writer.append_history(sim.history[0])  # the t = 0 row
     progress = Progress(comm, scene.n_steps, quiet)
-    summary = _summary(comm, scene, disc, sim, start)
     try:
         for n in range(first, scene.n_steps + 1):
             if fail_at_step is not None and n == fail_at_step:
