@@ -254,7 +254,11 @@ class _Translator:
         for arg, arg_node in zip(args, node.args, strict=True):
             if not _is_finite_real(arg):
                 raise self.reject(arg_node, "not a finite real expression")
-        return function(*args)
+        result = function(*args)
+        if function is sympy.atan2 and result.has(sympy.I) and not result.free_symbols:
+            # sympy rewrites atan2 of some constants as -I*log(...), which reads as complex
+            return function(*args, evaluate=False)
+        return result
 
     _HANDLERS: dict[type, Callable[..., sympy.Expr]] = {
         ast.Constant: constant,

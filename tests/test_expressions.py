@@ -173,3 +173,10 @@ def test_numbers_keep_every_digit_of_a_double():
     given = 0.12345678901234567
     field = compile_field([parse_expression(f"{given!r} + x * sqrt(2)", "k")])
     np.testing.assert_array_equal(field(X, Y, T)[0], given + X * np.sqrt(2))
+
+
+def test_atan2_of_constants_is_real():
+    """sympy writes atan2(1 + e**2, tan(sin(e))) as -I*log(...): still a real number."""
+    expr = parse_expression("arctan2(1 + e**2, tan(sin(e))) * x", "k")
+    expected = np.arctan2(1 + np.e**2, np.tan(np.sin(np.e))) * X
+    np.testing.assert_allclose(compile_field([expr])(X, Y, T)[0], expected, rtol=1e-15)
