@@ -45,6 +45,7 @@ DEFAULT_QUADRATURE = {1: 3, 2: 5, 3: 7}
 PENALTY_KINDS = ("dirichlet", "contact", "friction")
 STEP_TOLERANCE = 1e-9  # relative distance of T / dt from an integer
 MAX_STEPS = 10**9  # beyond this T / dt is a typo, and is no longer checked as an integer
+AREA_TOLERANCE = 1e-12  # relative to the size squared: a polygon with less area is degenerate
 
 _REQUIRED = object()
 
@@ -201,10 +202,11 @@ def _polygon_parts(table: _Table, source_dir: Path) -> list[str]:
     names = table.take("edge_names", _names)
     if len(names) != len(vertices):
         raise table.fail("edge_names", names, f"needs one name per edge ({len(vertices)})")
-    xy = np.array(vertices)  # (n_vertices, 2)
-    # Shoelace formula: positive signed area <=> counter-clockwise.
+    xy = np.array(vertices) - vertices[0]  # (n_vertices, 2), shifted: less cancellation
+    # Shoelace formula: positive signed area <=> counter-clockwise.  An area at round-off
+    # of the polygon's size squared (collinear vertices) has no sign to trust.
     area = 0.5 * np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1])
-    if not area > 0:
+    if not area > AREA_TOLERANCE * np.max(np.ptp(xy, axis=0)) ** 2:
         raise table.fail("vertices", vertices, "must run counter-clockwise (positive area)")
     return list(dict.fromkeys(names))
 

@@ -363,6 +363,14 @@ BAD_OVERRIDES = [
         ],
         "domain.vertices = [[0.0, 0.0]",
     ),
+    (  # collinear but for 1e-14: an area at round-off of the bounding box
+        [
+            "domain.shape=polygon",
+            "domain.vertices=[[0, 0], [1, 0], [2, 0], [1, 1e-14]]",
+            "domain.edge_names=['a', 'b', 'c', 'd']",
+        ],
+        "must run counter-clockwise (positive area)",
+    ),
     (
         ["domain.shape=geo", "domain.file=missing.geo", "domain.parts=['a']"],
         "domain.file = 'missing.geo': no such file",
