@@ -500,3 +500,10 @@ def test_signs_are_checked_on_the_contact_part(tmp_path, domain, part, key, acce
 def test_unconditionally_stable_newmark_and_static_are_accepted(overrides):
     scene = load_scene("square", overrides)
     assert scene.scheme == "static" or 2 * scene.beta >= scene.gamma
+
+
+def test_huge_scene_file_is_refused_before_reading(tmp_path):
+    path = tmp_path / "huge.toml"
+    with path.open("wb") as stream:
+        stream.truncate(2**24 + 1)  # sparse: no disk used, and never read
+    assert "huge.toml has 16777217 bytes (at most 16777216)" in load_error(str(path))
