@@ -11,12 +11,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.assembly import petsc_matrix, with_pattern
 from parefg.contact import ContactLaw
 from parefg.errors import SolverError
-from parefg.guards import DataGuard, RigidModes, require_constraints
+from parefg.guards import DataGuard, RigidModes, all_finite, require_constraints
 from parefg.profiling import phase
 from parefg.solver import ContactStepSolver, LinearStepSolver, configure_linear_solver
 from parefg.timestepping import State, make_scheme, relative_errors
@@ -281,14 +282,12 @@ class Simulation:
     def _check_state(self, state: State, n: int) -> None:
         """SolverError naming the first non-finite field of u, v, a at step n.  Collective.
 
-        One allreduce of three flags.
+        One allreduce (of a bit mask).
         """
         fields = {"displacement": state.u, "velocity": state.v, "acceleration": state.a}
-        local = [not np.all(np.isfinite(vec.getArray(readonly=True))) for vec in fields.values()]
-        bad = self.comm.allreduce(np.array(local, dtype=np.int8))
-        for name, flag in zip(fields, bad, strict=True):
-            if flag:
-                self._diverged(f"non-finite {name}", n)
+        self._raise_non_finite(
+            "non-finite ", {name: vec.getArray(readonly=True) for name, vec in fields.items()}, n
+        )
 
     def _check_row(self, row: dict, n: int) -> None:
         """SolverError naming the first non-finite energy of a history row.  Not collective.
@@ -317,11 +316,22 @@ class Simulation:
 
         ``fields`` maps names to this rank's values (the same names on every rank).
         """
-        local = [not np.all(np.isfinite(np.asarray(v, dtype=float))) for v in fields.values()]
-        bad = self.comm.allreduce(np.array(local, dtype=np.int8))
-        for name, flag in zip(fields, bad, strict=True):
-            if flag:
-                self._diverged(f"non-finite output field {name}", n)
+        self._raise_non_finite("non-finite output field ", fields, n)
+
+    def _raise_non_finite(self, what: str, arrays: dict[str, np.ndarray], n: int) -> None:
+        """SolverError naming the first of ``arrays`` that is not finite on some rank.
+
+        Collective: one allreduce of a bit mask (bit i: array i has a non-finite entry).
+        """
+        local = 0
+        with np.errstate(over="ignore"):  # huge finite values may overflow the sum
+            for bit, values in enumerate(arrays.values()):
+                if not all_finite(np.asarray(values, dtype=float)):
+                    local |= 1 << bit
+        bad = self.comm.allreduce(local, op=MPI.BOR)
+        for bit, name in enumerate(arrays):
+            if bad >> bit & 1:
+                self._diverged(f"{what}{name}", n)
 
     def _diverged(self, what: str, n: int) -> None:
         t = n * self.scheme.k
