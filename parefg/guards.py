@@ -48,7 +48,8 @@ class DataGuard:
 
     def __init__(self, comm, scene):
         self.comm, self.scene = comm, scene
-        self._evaluations: list[tuple[tuple[str, ...], float, str]] = []  # since the last check
+        # (key, t, vector datum, nonnegative) of each evaluation since the last check
+        self._evaluations: list[tuple[tuple[str, ...], float, bool, bool]] = []
         self._fault = _NO_FAULT  # (evaluation, component, x, y, value) of the first bad value
 
     def evaluate(self, key, field, points, t, *args, nonnegative=False) -> np.ndarray:
