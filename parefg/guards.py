@@ -23,6 +23,9 @@ from petsc4py import PETSc
 
 from parefg.errors import DataError, InputError, SolverError
 
+# Data beyond this size are refused with the non-finite ones: their squares (energies,
+# norms) overflow a double (about 1.3e154 squared), so they can only end in inf or NaN.
+DATA_BOUND = 1e150
 # A friction bound below -FRICTION_FLOOR * E is refused; above it, a negative value is the
 # round-off of a zero bound (sin(x)**2 + cos(x)**2 - 1) and is read as 0.
 FRICTION_FLOOR = 1e-12
@@ -56,19 +59,19 @@ class DataGuard:
         """``field(*args)`` at ``points`` (n, 2), its first bad value recorded.  Not collective.
 
         ``key`` is the scene path of the datum, e.g. ``("loads", "f")``; a value is bad
-        when it is not finite or, with ``nonnegative``, below the round-off floor of zero
-        (see FRICTION_FLOOR).  Returns the values, shape (k, n) for a vector datum or (n,),
-        with round-off negatives set to 0.
+        when it is not finite or beyond DATA_BOUND in size or, with ``nonnegative``, below
+        the round-off floor of zero (see FRICTION_FLOOR).  Returns the values, shape (k, n)
+        for a vector datum or (n,), with round-off negatives set to 0.
         """
         with np.errstate(all="ignore"):
             values = np.asarray(field(*args), dtype=float)
             rows = np.atleast_2d(values)  # (k, n), a view of values
             bad = None
             if nonnegative:
-                bad = ~np.isfinite(rows) | (rows < -FRICTION_FLOOR * self.scene.E)
+                bad = ~(np.abs(rows) <= DATA_BOUND) | (rows < -FRICTION_FLOOR * self.scene.E)
                 rows[~bad & (rows < 0.0)] = 0.0
-            elif not all_finite(rows):
-                bad = ~np.isfinite(rows)
+            elif not all_finite(rows) or np.abs(rows).max(initial=0.0) > DATA_BOUND:
+                bad = ~(np.abs(rows) <= DATA_BOUND)  # also NaN
         self._evaluations.append((key, t, values.ndim == 2, nonnegative))
         if self._fault is _NO_FAULT and bad is not None and bad.any():
             component, point = _first_bad(bad, points)
@@ -92,8 +95,13 @@ class DataGuard:
         key, t, vector, nonnegative = evaluations[int(index)]
         datum = self._describe(key, component if vector else None)
         at = f"at (x, y) = ({x:.6g}, {y:.6g}), t = {t:.6g}"
-        if nonnegative and math.isfinite(value):
+        if nonnegative and -DATA_BOUND <= value < 0.0:
             raise DataError(f"{datum} is negative ({value:.3g}) {at}: it must be >= 0")
+        if math.isfinite(value):
+            raise DataError(
+                f"{datum} is too large ({value:.3g}) {at}: scene data beyond "
+                f"{DATA_BOUND:.0e} in size overflow the energies"
+            )
         raise DataError(
             f"{datum} is not finite ({value}) {at}: scene data must be finite at every "
             "point and time of the run"

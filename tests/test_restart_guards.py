@@ -48,16 +48,17 @@ def test_restart_from_a_foreign_file_is_bad_input(tmp_path):
 
 
 def test_non_finite_state_stops_the_run_and_keeps_output(tmp_path):
-    """A finite load of 1e300 from t = 0.3 on (E = 1) overflows the state: exit 1, output kept.
+    """A soft, light body (E = 1e-100, rho = 1e-200) loaded by 1e120 from t = 0.3 on:
+    u = f / E = 1e220 overflows the elastic energy.  Exit 1, the steps before kept.
 
-    (A load that is itself not finite, sqrt(0.25 - t), is bad input: tests/test_guards.py.)
+    (Data that are themselves not finite, sqrt(0.25 - t), are bad input: test_guards.py.)
     """
     scene = tmp_path / "overflow.toml"
     scene.write_text(
         '[domain]\nshape = "square"\n[discretization]\nh = 0.25\n'
-        "[time]\nT = 0.5\ndt = 0.05\n"
+        "[material]\nE = 1e-100\nrho = 1e-200\n[time]\nT = 0.5\ndt = 0.05\n"
         '[boundary.top]\ntype = "dirichlet"\n'
-        '[loads]\nf = ["1e300 * heaviside(t - 0.275)", 0]\n[output]\nevery = 1\n'
+        '[loads]\nf = ["1e120 * heaviside(t - 0.275)", 0]\n[output]\nevery = 1\n'
     )
     out = tmp_path / "run"
     result = run_parefg(["run", str(scene), "--quiet", "--out", str(out)])
