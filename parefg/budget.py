@@ -170,11 +170,11 @@ def grid_size(scene, lx: float, ly: float) -> Size:
     hx, hy = lx / n_x, ly / n_y
     triangles = scene.cells == "tri"
     spacing = 0.5 * (hx + hy) * (TRIANGLE_GRID_SPACING if triangles else 1.0)
-    cell_area = hx * hy / (2 if triangles else 1)
-    kappa = spacing * spacing / (hx * hy)
+    kappa = (spacing / hx) * (spacing / hy)  # ratios: h = 1e-300 must not underflow
+    alpha = 1 / kappa / (2 if triangles else 1)
     n_cells = n_x * n_y * (2 if triangles else 1)
     n_nodes = (n_x + 1) * (n_y + 1)
-    return _size(scene, n_nodes, n_cells, 2 * (n_x + n_y), kappa, cell_area / spacing / spacing)
+    return _size(scene, n_nodes, n_cells, 2 * (n_x + n_y), kappa, alpha)
 
 
 def unstructured_size(scene, area: float, perimeter: float) -> Size:
