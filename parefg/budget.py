@@ -308,8 +308,9 @@ def _format_count(count: float) -> str:
     return f"{count:.2g}" if count < 10 else f"{count:.0f}"
 
 
-def _format_gb(n_bytes: float) -> str:
-    return _format_count(n_bytes / GB) + " GB"
+def _about(count: float) -> str:
+    """An estimated count for a message: "about 4225", or "more than 1e300"."""
+    return f"about {_format_count(count)}" if math.isfinite(count) else _format_count(count)
 
 
 @dataclass(frozen=True)
@@ -347,23 +348,28 @@ class Budget:
         scene = self.scene
         what = (
             f"scene {scene.name}: discretization.h = {scene.h:g} with support = {scene.support:g}"
-            f" {found} about {_format_count(size.n_nodes)} nodes"
+            f" {found} {_about(size.n_nodes)} nodes"
         )
-        if not size.n_dofs <= MAX_INDEX or not size.matrix_entries / self.n_ranks <= MAX_INDEX:
+        if not size.n_dofs <= MAX_INDEX:
             return (
-                f"{what} ({_format_count(size.n_dofs)} DOFs, "
-                f"{_format_count(size.matrix_entries)} matrix entries); PETSc's 32-bit indices "
-                f"allow at most {MAX_INDEX} of each per rank; use a larger h or smaller support"
+                f"{what} ({_about(size.n_dofs)} DOFs); PETSc's 32-bit indices allow at most "
+                f"{MAX_INDEX} DOFs; use a larger h"
+            )
+        if not size.matrix_entries / self.n_ranks <= MAX_INDEX:
+            return (
+                f"{what} ({_about(size.matrix_entries / self.n_ranks)} matrix entries per rank); "
+                f"PETSc's 32-bit indices allow at most {MAX_INDEX} per rank; use a larger h, "
+                "a smaller support or more ranks"
             )
         needed = memory_per_rank(size, self.n_ranks)
         if needed <= slack * self.rank_bytes:
             return None
         limit = "--max-memory" if self.given else "80% of the available memory"
         return (
-            f"{what}, {_format_count(size.neighbours)} neighbours per point and "
-            f"{_format_gb(needed * self.host_ranks)} of memory on this machine "
-            f"(limit {_format_gb(self.rank_bytes * self.host_ranks)}: {limit}); use a larger h "
-            f"or smaller support, or raise --max-memory GB if the machine has it"
+            f"{what}, {_about(size.neighbours)} neighbours per point and "
+            f"{_about(needed * self.host_ranks / GB)} GB of memory on this machine "
+            f"(limit {_format_count(self.rank_bytes * self.host_ranks / GB)} GB: {limit}); "
+            "use a larger h or smaller support, or raise --max-memory GB if the machine has it"
         )
 
     def check_scene(self, comm) -> None:
