@@ -12,6 +12,7 @@ import numpy as np
 from mpi4py import MPI
 
 from parefg import __version__
+from parefg.budget import check_problem_size
 from parefg.checkpoint import read_checkpoint, write_checkpoint
 from parefg.errors import InputError, SolverError
 from parefg.operators import build_discretization
@@ -119,20 +120,24 @@ def run_scene(
     fail_at_step: int | None = None,
     checkpoint_every: int = 0,
     restart: str | None = None,
+    max_memory: float | None = None,
 ) -> dict:
     """Run ``scene`` on ``comm``; write result.h5/.xdmf and summary.json.  Collective.
 
     ``checkpoint_every`` > 0 writes DIR/checkpoint.h5 every that many steps; ``restart``
     continues from such a file (its step + 1 onwards) instead of the initial state.
+    ``max_memory`` (GB per machine; default: its available memory) bounds the estimated
+    size of the run: a scene beyond it is refused before anything is created.
 
     Returns the summary dict (the contents of summary.json).
     """
     start = time.perf_counter()
     start_logging()
+    budget = check_problem_size(comm, scene, max_memory)
     out_dir = choose_output_dir(comm, scene.name, out)
     say = (lambda *a: print(*a, flush=True)) if comm.rank == 0 and not quiet else (lambda *a: None)
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
-    disc = build_discretization(comm, scene)
+    disc = build_discretization(comm, scene, budget)
     sim = Simulation(comm, scene, disc)
     say(
         f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "
