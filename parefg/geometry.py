@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from parefg.errors import InputError
+from parefg.geo import load_geo
 
 # gmsh element type codes of first-order cells.
 GMSH_TRIANGLE, GMSH_QUAD = 2, 3
@@ -261,15 +262,30 @@ def _add_polygon_surface(gmsh, vertices, h: float):
 
 
 def _build_from_geo(gmsh, domain: dict, h: float, cells: str):
-    """A user .geo file: its listed physical curves are the parts."""
+    """A user .geo file, checked by :mod:`parefg.geo`: its listed physical curves are the parts.
+
+    gmsh reads the checked text from a file in a private temporary directory, not
+    the user's file: what runs is what was checked, and nothing beside the user's
+    file (gmsh merges ``NAME.opt`` when it exists) or in its name (gmsh uncompresses
+    ``*.gz`` through the shell) reaches gmsh.
+    """
     path = str(domain.get("file", ""))
-    if not os.path.isfile(path) or not os.access(path, os.R_OK):
-        raise InputError(f"domain.file: cannot read .geo file {path!r}")
     try:
-        gmsh.open(path)
-    except Exception:
-        _reset_geo_parser(gmsh)
-        raise
+        text = load_geo(path)
+    except InputError as exc:
+        raise InputError(f"domain.file {path!r}: {exc}") from None
+    with tempfile.TemporaryDirectory(prefix="parefg-geo-") as private:
+        checked = os.path.join(private, "domain.geo")
+        with open(checked, "w", encoding="utf-8") as stream:
+            stream.write(text)
+        try:
+            gmsh.open(checked)
+        except Exception as exc:
+            _reset_geo_parser(gmsh)
+            if type(exc) is not Exception:  # gmsh reports its errors as plain Exception
+                raise
+            message = str(exc).replace(checked, path)
+            raise InputError(f"domain: gmsh failed: {message}") from None
     named_curves: dict[str, list[int]] = {}
     for dim, tag in gmsh.model.getPhysicalGroups(1):
         name = gmsh.model.getPhysicalName(dim, tag)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from parefg.errors import InputError
+from parefg.geo import load_geo
 from parefg.jitter import MAX_JITTER
 
 SECTIONS = (
@@ -206,6 +207,10 @@ def _geo_parts(table: _Table, source_dir: Path) -> list[str]:
     path = (source_dir / given).resolve()
     if not path.is_file():
         raise table.fail("file", given, f"no such file ({path})")
+    try:  # checked here too, so that a hostile file fails before anything is created
+        load_geo(str(path))
+    except InputError as exc:
+        raise table.fail("file", given, str(exc)) from None
     table.out["file"] = str(path)
     distinct = (lambda v: 0 < len(v) == len(set(v)), "must be a non-empty list of distinct names")
     return table.take("parts", _names, _REQUIRED, distinct)
