@@ -112,7 +112,7 @@ def run_case(parefg, name, ranks, timeout):
         (cwd / "scene.toml").write_text(SCENE.format(geo=geo_in_scene))
         cmd = [parefg, "run", "scene.toml", "--out", "out"]
         if ranks > 1:
-            cmd = ["mpirun", "--timeout", str(timeout), "-n", str(ranks), *cmd]
+            cmd = ["mpirun", "--timeout", str(int(timeout)), "-n", str(ranks), *cmd]
         env = dict(
             os.environ,
             OMPI_ALLOW_RUN_AS_ROOT="1",
