@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import REPO, run_parefg
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from mpi4py import MPI
 
 from parefg import geometry
@@ -331,3 +333,22 @@ def test_cli_refuses_hostile_geo_with_one_line(tmp_path, statement, ranks):
     assert len(lines) == 1, result.stderr
     assert "domain.file" in lines[0] and "line 7" in lines[0] and statement[:4] in lines[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["domain.geo", "scene.toml"]
+
+
+SOUP = (
+    "x", "a", "i", "[", "]", "{", "}", "(", ")", ";", "=", "+=", "++", "1", "1e5", "0.5", ":",
+    ",", "-", "%", "^", "#", ".", "For", "EndFor", "If", "EndIf", "Else", "ElseIf", "In",
+    "Point", "Line", "Loop", "Physical", "Curve", '"n"', "Field", "F", "Mesh", "MeshSizeMax",
+    "System", "newp", "BooleanUnion", "Surface", "Delete", "Sin", "/*", "*/", "//", "\n",
+)  # fmt: skip
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(st.sampled_from(SOUP), max_size=40))
+def test_token_soup_is_accepted_or_refused_and_checking_is_idempotent(words):
+    """Any text: InputError or a checked text that checks to itself (no other exception)."""
+    try:
+        checked = sanitize_geo(" ".join(words))
+    except InputError:
+        return
+    assert sanitize_geo(checked) == checked
