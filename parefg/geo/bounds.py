@@ -72,7 +72,7 @@ class Node:
 
     kind: str
     line: int
-    text: str
+    text: object  # the statement, as a str or a parefg.geo.tokens.Span
     exprs: list = field(default_factory=list)
     lists: list = field(default_factory=list)
     name: str | None = None
@@ -119,7 +119,8 @@ class _Run:
         self.node: Node | None = None
 
     def error(self, why: str) -> InputError:
-        statement = self.node.text if len(self.node.text) <= 70 else self.node.text[:67] + "..."
+        statement = str(self.node.text)
+        statement = statement if len(statement) <= 70 else statement[:67] + "..."
         return InputError(f"line {self.node.line}: {why}: {statement}")
 
     def charge(self, work: int) -> None:

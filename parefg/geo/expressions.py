@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from parefg.errors import InputError
 from parefg.geo.bounds import FUNCTIONS
-from parefg.geo.tokens import COMMAND_NAMES, Token, hides_control_word, is_keyword
+from parefg.geo.tokens import COMMAND_NAMES, Span, Token, hides_control_word, is_keyword
 
 MAX_NESTING = 40  # parentheses, unary operators and If/For blocks inside each other
 MESH_SIZE_OPTIONS = (
@@ -94,8 +94,9 @@ class ExpressionParser:
             raise self.error(f"variable name {name!r} contains a word gmsh reads as If/For")
         return name
 
-    def text(self) -> str:
-        return " ".join(token.source() for token in self.tokens[self.start : self.at])
+    def text(self) -> Span:
+        """The statement parsed so far, rendered only if an error names it."""
+        return Span(self.tokens, self.start, self.at)
 
     # ----------------------------------------------------------------- lists
 

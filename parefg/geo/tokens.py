@@ -75,13 +75,19 @@ OPERATORS = (
     "...", "::", "+=", "-=", "*=", "/=", "==", "!=", "<=", ">=", "&&", "||", "++", "--", ">>",
     "<<",
 )  # fmt: skip
-SINGLE_CHARACTERS = set("+-*/^%<>!=(){}[],;:.#?|&~")
 MAX_STRING = 256  # gmsh keeps at most 1023 characters of a string
 
-_SPACE = re.compile(r"[ \t\r\f]+")
-# Gmsh.l: {digit}+ | {digit}+"."{digit}*({exp})? | {digit}*"."{digit}+({exp})? | {digit}+{exp}
-_NUMBER = re.compile(r"\d+\.\d*(?:[eE][-+]?\d+)?|\.\d+(?:[eE][-+]?\d+)?|\d+(?:[eE][-+]?\d+)?")
-_NAME = re.compile(r"[A-Za-z_][A-Za-z_0-9]*")
+# One alternative per token kind, tried in order; gmsh's flex rules take the longest match,
+# which these give: comments before '/', numbers before '.', long operators before short.
+# Gmsh.l numbers: {digit}+ | {digit}+"."{digit}*({exp})? | {digit}*"."{digit}+({exp})? | ...
+_TOKEN = re.compile(
+    r"(?P<newline>\n)|(?P<space>[ \t\r\f]+)|(?P<comment>//[^\n]*)|(?P<block>/\*)"
+    r"|(?P<quote>[\"'])"
+    r"|(?P<num>[0-9]+\.[0-9]*(?:[eE][-+]?[0-9]+)?|\.[0-9]+(?:[eE][-+]?[0-9]+)?"
+    r"|[0-9]+(?:[eE][-+]?[0-9]+)?)"
+    r"|(?P<name>[A-Za-z_][A-Za-z_0-9]*)"
+    r"|(?P<op>" + "|".join(re.escape(op) for op in OPERATORS) + r"|[-+*/^%<>!=(){}\[\],;:.#?|&~])"
+)
 
 
 @dataclass(frozen=True)
@@ -99,6 +105,18 @@ class Token:
     def source(self) -> str:
         """The token as gmsh reads it."""
         return f"{self.quote}{self.text}{self.quote}" if self.kind == "str" else self.text
+
+
+@dataclass(frozen=True)
+class Span:
+    """Tokens ``start:stop`` of a token list; ``str()`` gives them as gmsh reads them."""
+
+    tokens: list[Token]
+    start: int
+    stop: int
+
+    def __str__(self) -> str:
+        return " ".join(token.source() for token in self.tokens[self.start : self.stop])
 
 
 def is_keyword(name: str) -> bool:
@@ -128,35 +146,23 @@ def tokenize(text: str) -> list[Token]:
     tokens: list[Token] = []
     position, line = 0, 1
     while position < len(text):
-        char = text[position]
-        if char == "\n":
-            position, line = position + 1, line + 1
-        elif match := _SPACE.match(text, position):
-            position = match.end()
-        elif text.startswith("//", position):
-            end = text.find("\n", position)
-            position = len(text) if end < 0 else end
-        elif text.startswith("/*", position):
-            end = text.find("*/", position + 2)
+        match = _TOKEN.match(text, position)
+        if match is None:
+            raise InputError(f"line {line}: character {text[position]!r} is not allowed")
+        kind, position = match.lastgroup, match.end()
+        if kind == "newline":
+            line += 1
+        elif kind == "block":
+            end = text.find("*/", position)
             if end < 0:
                 raise InputError(f"line {line}: comment '/*' is never closed")
             line += text.count("\n", position, end)
             position = end + 2
-        elif char in "\"'":
-            token, position = _string(text, position, line)
+        elif kind == "quote":
+            token, position = _string(text, position - 1, line)
             tokens.append(token)
-        elif match := _NUMBER.match(text, position):
-            tokens.append(Token("num", match.group(), line))
-            position = match.end()
-        elif match := _NAME.match(text, position):
-            tokens.append(Token("name", match.group(), line))
-            position = match.end()
-        else:
-            operator = next((op for op in OPERATORS if text.startswith(op, position)), char)
-            if len(operator) == 1 and operator not in SINGLE_CHARACTERS:
-                raise InputError(f"line {line}: character {char!r} is not allowed")
-            tokens.append(Token("op", operator, line))
-            position += len(operator)
+        elif kind in ("num", "name", "op"):
+            tokens.append(Token(kind, match.group(), line))
     return tokens
 
 
