@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from parefg.errors import InputError
@@ -45,7 +46,7 @@ def _hypot(a: float, b: float) -> float:
 
 
 #: name -> (number of arguments, the C function gmsh calls); Rand has no known value
-FUNCTIONS = {
+FUNCTIONS: dict[str, tuple[int, Callable[..., float] | None]] = {
     "Exp": (1, math.exp), "Log": (1, math.log), "Log10": (1, math.log10),
     "Sqrt": (1, math.sqrt), "Sin": (1, math.sin), "Asin": (1, math.asin),
     "ArcSin": (1, math.asin), "Cos": (1, math.cos), "Acos": (1, math.acos),
@@ -116,7 +117,7 @@ def run_program(program: list[Node]) -> int:
 class _Run:
     def __init__(self):
         self.budget = _Budget()
-        self.node: Node | None = None
+        self.node = Node("statement", 0, "")  # the statement being run, for messages
 
     def error(self, why: str) -> InputError:
         statement = str(self.node.text)
@@ -150,28 +151,29 @@ class _Run:
         list and adds to a scalar.  Where that flag is unsure here, the length bound
         assumes a list and the value is unknown.
         """
-        name = node.name
+        name, tree = str(node.name), node.value or ("items", [])
         if name in state.loop_names:
             raise self.error(f"assigns the loop variable {name!r} inside its loop")
         previous = state.lengths.get(name, 0)
         if node.target == "index":
-            index = self.value(node.index, state)
+            index = self.value(node.index or ("unknown",), state)
             if index is None or not 0 <= math.trunc(index) < MAX_LIST_LENGTH:
                 raise self.error(
                     f"the index must be known and in 0..{MAX_LIST_LENGTH - 1} before gmsh runs"
                 )
-            self.value(node.value, state)
+            self.value(tree, state)
             self._set(state, name, None, max(previous, math.trunc(index) + 1), scalar=False)
             return
-        if node.value[0] == "boolean":
-            for items in node.value[1]:
+        value: float | None = None
+        if tree[0] == "boolean":
+            for items in tree[1]:
                 self.length(items, state)
-            value, length = None, BOOLEAN_RESULT_LENGTH
-        elif _is_single(node.value):
-            value, length = self.value(node.value[1][0], state), 1
+            length = BOOLEAN_RESULT_LENGTH
+        elif _is_single(tree):
+            value, length = self.value(tree[1][0], state), 1
         else:
-            value, length = None, self.length(node.value, state)
-        single = node.target == "scalar" and length == 1 and _is_single(node.value)
+            length = self.length(tree, state)
+        single = node.target == "scalar" and length == 1 and _is_single(tree)
         if single and (node.op == "=" or name in state.scalars):
             self._set(state, name, _combine(node.op, state.values.get(name), value), 1, True)
         elif node.op == "=":
@@ -213,12 +215,11 @@ class _Run:
         _merge(state, outcomes)
 
     def run_for(self, node: Node, state: _State) -> None:
-        bounds = [self.value(expr, state) for expr in node.exprs]
-        if any(b is None or not math.isfinite(b) for b in bounds):
-            raise self.error(
-                "a For range must be known before gmsh runs (numbers, and variables "
-                "assigned numbers earlier)"
-            )
+        why = (
+            "a For range must be known before gmsh runs (numbers, and variables "
+            "assigned numbers earlier)"
+        )
+        bounds = self.known(node.exprs, state, why)
         start, stop, step = bounds if len(bounds) == 3 else (*bounds, 1.0)
         if step == 0:
             raise self.error("the For step is 0")
@@ -260,11 +261,17 @@ class _Run:
             raise self.error(f"a list may have more than {MAX_LIST_LENGTH} items")
         return total
 
+    def known(self, exprs, state: _State, why: str) -> list[float]:
+        """The values of ``exprs``, all of which must be known (else InputError ``why``)."""
+        values = [self.value(expr, state) for expr in exprs]
+        finite = [v for v in values if v is not None and math.isfinite(v)]
+        if len(finite) < len(values):
+            raise self.error(why)
+        return finite
+
     def range_length(self, item: tuple, state: _State) -> int:
         """Items of ``a:b`` or ``a:b:step``, counted as gmsh's loop builds them."""
-        bounds = [self.value(expr, state) for expr in item[1:]]
-        if any(b is None or not math.isfinite(b) for b in bounds):
-            raise self.error("a range a:b must have bounds known before gmsh runs")
+        bounds = self.known(item[1:], state, "a range a:b must have bounds known before gmsh runs")
         if len(bounds) == 2:
             start, stop = bounds
             step = 1.0 if start < stop else -1.0

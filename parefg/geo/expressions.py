@@ -51,6 +51,11 @@ class ExpressionParser:
         index = self.at + ahead
         return self.tokens[index] if index < len(self.tokens) else None
 
+    def next_is(self, words) -> bool:
+        """True when the next token is a name or operator among ``words``."""
+        token = self.peek()
+        return token is not None and token.kind in ("op", "name") and token.text in words
+
     def is_(self, text: str, ahead: int = 0) -> bool:
         token = self.peek(ahead)
         return token is not None and token.kind in ("op", "name") and token.text == text

@@ -42,7 +42,8 @@ class StatementParser(ExpressionParser):
 
     def block(self, ends: tuple[str, ...]) -> tuple[list[Node], str | None]:
         """Statements up to one of ``ends`` (consumed and returned) or the end of the file."""
-        nodes, opening = [], self.start
+        nodes: list[Node] = []
+        opening = self.start
         while (token := self.peek()) is not None:
             self.start = self.at
             if token.kind == "name" and token.text in ends:
@@ -139,7 +140,7 @@ class StatementParser(ExpressionParser):
             if self.is_("="):
                 self.take()
                 lists.append(self.list_())
-            if self.peek() is not None and self.peek().text in ARRANGEMENTS:
+            if self.next_is(ARRANGEMENTS):
                 self.take()
         else:
             self.expect("=")
@@ -210,7 +211,7 @@ class StatementParser(ExpressionParser):
         lists = []
         for _ in range(2):
             self.expect("{")
-            while self.peek() is not None and self.peek().text in SHAPE_KINDS:
+            while self.next_is(SHAPE_KINDS):
                 self.take()
                 lists.append(self.braced())
                 self.end()
@@ -222,7 +223,8 @@ class StatementParser(ExpressionParser):
 
     def if_block(self, line: int) -> Node:
         self.nest()
-        branches, ending = [], "ElseIf"
+        branches: list = []
+        ending: str | None = "ElseIf"
         while ending == "ElseIf":
             condition = self.parenthesized()
             body, ending = self.block(("ElseIf", "Else", "EndIf"))
@@ -277,7 +279,7 @@ class StatementParser(ExpressionParser):
         op = self.expect(*ASSIGNMENTS).text
         if target == "index":
             value = self.expr()
-        elif target == "list" and self.peek() is not None and self.peek().text in BOOLEANS:
+        elif target == "list" and self.next_is(BOOLEANS):
             self.take()
             value = ("boolean", self.boolean_operands())
         else:
