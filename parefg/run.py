@@ -159,6 +159,7 @@ def run_scene(
                 writer.append_history(row)
                 if _is_output_step(n, scene):
                     node_fields, contact_fields = _output_fields(sim, state)
+                    sim.check_fields(n, {**node_fields, **contact_fields})
                     writer.write_step(n, row["time"], node_fields, contact_fields)
                 if checkpoint_every > 0 and n % checkpoint_every == 0:
                     write_checkpoint(comm, out_dir / "checkpoint.h5", sim, state, n)
