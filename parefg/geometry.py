@@ -253,7 +253,7 @@ def _build_polygon(gmsh, domain: dict, h: float, cells: str):
 
 
 PAIRS_PER_CHUNK = 200_000  # candidate edge pairs tested at once by polygon_defect
-MAX_POLYGON_VERTICES = 5000  # polygon_defect takes ~3 s at worst for 5000 vertices
+MAX_POLYGON_VERTICES = 5000  # worst case (every pair a candidate): 7 s on a busy 2-core VM
 
 
 def polygon_defect(vertices) -> str | None:
