@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from parefg.errors import InputError
+from parefg.geo import load_geo
 
 # gmsh element type codes of first-order cells.
 GMSH_TRIANGLE, GMSH_QUAD = 2, 3
@@ -308,6 +309,9 @@ def _build_polygon(gmsh, domain: dict, h: float, cells: str):
         raise InputError(
             f"domain.edge_names: need one name per edge ({len(vertices)}), got {len(names)}"
         )
+    defect = polygon_defect(vertices)
+    if defect is not None:
+        raise InputError(f"domain.vertices: must be a simple polygon: {defect}")
     following = np.roll(vertices, -1, axis=0)
     signed_area = 0.5 * np.sum(vertices[:, 0] * following[:, 1] - following[:, 0] * vertices[:, 1])
     if not signed_area > 0:
@@ -317,6 +321,113 @@ def _build_polygon(gmsh, domain: dict, h: float, cells: str):
     for name, line in zip(names, lines, strict=True):
         part_curves.setdefault(str(name), []).append(line)
     return _GmshDomain([surface], part_curves)
+
+
+PAIRS_PER_CHUNK = 200_000  # candidate edge pairs tested at once by polygon_defect
+MAX_POLYGON_VERTICES = 5000  # worst case (every pair a candidate): 7 s on a busy 2-core VM
+
+
+def polygon_defect(vertices) -> str | None:
+    """Why the closed polyline through ``vertices`` is not a simple polygon, or None.
+
+    Edge i runs from vertex i to vertex i + 1 (the last back to vertex 0).  A
+    simple polygon has no zero-length edge, no two coincident vertices, no two
+    non-adjacent edges that cross or touch and no two adjacent edges that overlap
+    (fold back).  Distances below 1e-9 times the polygon's extent count as touching,
+    so the answer does not hang on round-off.  gmsh aborts the process on a
+    self-intersecting curve loop: this is its gate.
+
+    Only edge pairs whose ranges overlap along x (or y) are tested (edges sorted by
+    their smallest coordinate, found with searchsorted), vectorized over
+    PAIRS_PER_CHUNK pairs at a time; the worst case stays quadratic, hence
+    MAX_POLYGON_VERTICES.
+    """
+    xy = np.asarray(vertices, dtype=float)  # (n, 2)
+    n = len(xy)
+    if n > MAX_POLYGON_VERTICES:
+        return f"it has {n} vertices, at most {MAX_POLYGON_VERTICES} are allowed"
+    ends = np.roll(xy, -1, axis=0)  # (n, 2) end of edge i
+    tol = 1e-9 * float(np.ptp(xy, axis=0).max())
+    short = np.flatnonzero(np.linalg.norm(ends - xy, axis=1) <= tol)
+    if len(short):
+        i = int(short[0])
+        return f"edge {i} has zero length (vertices {i} and {(i + 1) % n} coincide)"
+    low, high = np.minimum(xy, ends), np.maximum(xy, ends)  # (n, 2) edge bounding boxes
+    # Along the axis that gives fewer candidates, edge order[k] can only meet the edges
+    # order[k + 1 : reach[k]] that start before it ends.
+    sweeps = []
+    for axis in (0, 1):
+        order = np.argsort(low[:, axis], kind="stable")
+        reach = np.searchsorted(low[order, axis], high[order, axis] + tol, side="right")
+        sweeps.append((order, reach - np.arange(n) - 1))  # (n,), (n,) >= 0
+    order, counts = min(sweeps, key=lambda sweep: int(sweep[1].sum()))
+    ends_before = np.cumsum(counts)  # (n,) pairs of rows 0..k
+    start = 0
+    while start < n:
+        before = ends_before[start] - counts[start]
+        stop = max(start + 1, int(np.searchsorted(ends_before, before + PAIRS_PER_CHUNK, "right")))
+        rows = np.arange(start, stop)
+        k = np.repeat(rows, counts[rows])  # (p,) sorted position of the first edge
+        offsets = np.arange(len(k)) - np.repeat(
+            np.cumsum(counts[rows]) - counts[rows], counts[rows]
+        )
+        defect = _pairs_defect(xy, ends, low, high, order[k], order[k + 1 + offsets], tol)
+        if defect is not None:
+            return defect
+        start = stop
+    return None
+
+
+def _pairs_defect(xy, ends, low, high, e, f, tol) -> str | None:
+    """The first defect among the edge pairs (e, f), each (p,) int."""
+    n = len(xy)
+    e, f = np.minimum(e, f), np.maximum(e, f)
+    near = np.all((low[e] <= high[f] + tol) & (low[f] <= high[e] + tol), axis=1)
+    e, f = e[near], f[near]
+    coincide = np.linalg.norm(xy[e] - xy[f], axis=1) <= tol
+    if np.any(coincide):
+        k = np.lexsort((f[coincide], e[coincide]))[0]
+        a, b = int(e[coincide][k]), int(f[coincide][k])
+        return f"vertices {a} and {b} coincide ({_point(xy[a])})"
+    a, b, c, d = xy[e], ends[e], xy[f], ends[f]  # (p, 2)
+    following = f == e + 1  # edge f starts where edge e ends: c = b
+    closing = (e == 0) & (f == n - 1)  # edge f ends where edge e starts: d = a
+    # Adjacent edges overlap when the far end of one lies on the other.
+    fold = following & ((_segment_distance(d, a, b) <= tol) | (_segment_distance(a, c, d) <= tol))
+    fold |= closing & ((_segment_distance(c, a, b) <= tol) | (_segment_distance(b, c, d) <= tol))
+    crossing = (_cross(b - a, c - a) * _cross(b - a, d - a) < 0) & (
+        _cross(d - c, a - c) * _cross(d - c, b - c) < 0
+    )
+    gap = np.minimum.reduce(
+        [_segment_distance(c, a, b), _segment_distance(d, a, b), _segment_distance(a, c, d),
+         _segment_distance(b, c, d)]
+    )  # fmt: skip
+    bad = fold | (~following & ~closing & (crossing | (gap <= tol)))
+    if not np.any(bad):
+        return None
+    k = np.lexsort((f[bad], e[bad]))[0]
+    first, second = int(e[bad][k]), int(f[bad][k])
+    how = "overlap" if fold[bad][k] else "cross or touch"
+    return (
+        f"edges {first} and {second} {how} ({_point(xy[first])} -> {_point(ends[first])} and "
+        f"{_point(xy[second])} -> {_point(ends[second])})"
+    )
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(...,) z-component of u x v for (..., 2) vectors."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...,) distance from points p to segments [a, b], all (..., 2) (b != a)."""
+    ab = b - a
+    t = np.clip(np.sum((p - a) * ab, axis=-1) / np.sum(ab * ab, axis=-1), 0.0, 1.0)
+    return np.linalg.norm(p - a - t[..., None] * ab, axis=-1)
+
+
+def _point(p: np.ndarray) -> str:
+    return f"[{p[0]:g}, {p[1]:g}]"
 
 
 def _add_polygon_surface(gmsh, vertices, h: float):
@@ -332,15 +443,30 @@ def _add_polygon_surface(gmsh, vertices, h: float):
 
 
 def _build_from_geo(gmsh, domain: dict, h: float, cells: str):
-    """A user .geo file: its listed physical curves are the parts."""
+    """A user .geo file, checked by :mod:`parefg.geo`: its listed physical curves are the parts.
+
+    gmsh reads the checked text from a file in a private temporary directory, not
+    the user's file: what runs is what was checked, and nothing beside the user's
+    file (gmsh merges ``NAME.opt`` when it exists) or in its name (gmsh uncompresses
+    ``*.gz`` through the shell) reaches gmsh.
+    """
     path = str(domain.get("file", ""))
-    if not os.path.isfile(path) or not os.access(path, os.R_OK):
-        raise InputError(f"domain.file: cannot read .geo file {path!r}")
     try:
-        gmsh.open(path)
-    except Exception:
-        _reset_geo_parser(gmsh)
-        raise
+        text = load_geo(path)
+    except InputError as exc:
+        raise InputError(f"domain.file {path!r}: {exc}") from None
+    with tempfile.TemporaryDirectory(prefix="parefg-geo-") as private:
+        checked = os.path.join(private, "domain.geo")
+        with open(checked, "w", encoding="utf-8") as stream:
+            stream.write(text)
+        try:
+            gmsh.open(checked)
+        except Exception as exc:
+            _reset_geo_parser(gmsh)
+            if type(exc) is not Exception:  # gmsh reports its errors as plain Exception
+                raise
+            message = str(exc).replace(checked, path)
+            raise InputError(f"domain: gmsh failed: {message}") from None
     named_curves: dict[str, list[int]] = {}
     for dim, tag in gmsh.model.getPhysicalGroups(1):
         name = gmsh.model.getPhysicalName(dim, tag)

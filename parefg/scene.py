@@ -46,6 +46,7 @@ from parefg.scene_schema import (
     TOP_LEVEL_KEYS,
     WEIGHTS,
     elastic_constants,
+    plain_name,
     step_count,
     validate,
 )
@@ -201,7 +202,7 @@ def _read_source(source: str) -> tuple[str, dict, Path]:
     if not path.is_file():
         known = ", ".join(builtin_scenes())
         raise InputError(f"scene {source!r}: no such built-in scene or file (built-in: {known})")
-    name = path.stem
+    name = plain_name(path.stem)  # the default output directory is runs/<name>
     try:
         if path.stat().st_size > MAX_SCENE_BYTES:
             size = path.stat().st_size

@@ -10,13 +10,15 @@ a :class:`~parefg.scene.Scene`.
 
 import copy
 import math
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from parefg.errors import InputError
-from parefg.geometry import BOX_PART_NAMES, Z_EDGE_NAMES, Z_VERTICES
+from parefg.geo import load_geo
+from parefg.geometry import BOX_PART_NAMES, Z_EDGE_NAMES, Z_VERTICES, polygon_defect
 from parefg.jitter import MAX_JITTER
 
 SECTIONS = (
@@ -33,6 +35,12 @@ SECTIONS = (
     "solver",
 )
 TOP_LEVEL_KEYS = ("name", "description")
+#: a scene name is a directory name under runs/: no separator, no leading '.' or '-'
+PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,99}")
+PLAIN_NAME_RULE = (
+    "a plain name: letters, digits, '.', '_', '-', not starting with '.' or '-', "
+    "at most 100 characters"
+)
 WEIGHTS = ("cubic", "quartic", "gaussian")
 CELLS = ("quad", "tri")
 SCHEMES = ("newmark", "static")
@@ -202,6 +210,9 @@ def _polygon_parts(table: _Table, source_dir: Path) -> list[str]:
     names = table.take("edge_names", _names)
     if len(names) != len(vertices):
         raise table.fail("edge_names", names, f"needs one name per edge ({len(vertices)})")
+    defect = polygon_defect(vertices)
+    if defect is not None:
+        raise table.fail("vertices", vertices, f"must be a simple polygon: {defect}")
     xy = np.array(vertices) - vertices[0]  # (n_vertices, 2), shifted: less cancellation
     # Shoelace formula: positive signed area <=> counter-clockwise.  An area at round-off
     # of the polygon's size squared (collinear vertices) has no sign to trust.
@@ -217,6 +228,10 @@ def _geo_parts(table: _Table, source_dir: Path) -> list[str]:
     path = (source_dir / given).resolve()
     if not path.is_file():
         raise table.fail("file", given, f"no such file ({path})")
+    try:  # checked here too, so that a hostile file fails before anything is created
+        load_geo(str(path))
+    except InputError as exc:
+        raise table.fail("file", given, str(exc)) from None
     table.out["file"] = str(path)
     distinct = (lambda v: 0 < len(v) == len(set(v)), "must be a non-empty list of distinct names")
     return table.take("parts", _names, _REQUIRED, distinct)
@@ -400,11 +415,23 @@ def _read_solver(where: str, raw) -> dict[str, str]:
     return options
 
 
+def plain_name(text: str) -> str:
+    """``text`` made a plain name (PLAIN_NAME): other characters become '_'; "scene" if empty."""
+    plain = re.sub(r"[^A-Za-z0-9._-]", "_", text).lstrip(".-")[:100]
+    return plain or "scene"
+
+
 def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, list[str]]:
-    """The effective params (defaults filled) and the domain's boundary part names."""
+    """The effective params (defaults filled) and the domain's boundary part names.
+
+    A top-level ``name`` names the default output directory runs/<name>, so it
+    must be plain (PLAIN_NAME): "/abs/path" or "../../x" would point elsewhere.
+    """
     for key, value in raw.items():
         if key in TOP_LEVEL_KEYS and not isinstance(value, str):
             raise InputError(f"{where}: {key} = {_show(value)}: must be a string")
+        if key == "name" and not PLAIN_NAME.fullmatch(value):
+            raise InputError(f"{where}: name = {_show(value)}: must be {PLAIN_NAME_RULE}")
         if key not in SECTIONS and key not in TOP_LEVEL_KEYS:
             allowed = ", ".join(SECTIONS)
             raise InputError(f"{where}: [{_name(key)}]: unknown section (allowed: {allowed})")

@@ -363,13 +363,13 @@ BAD_OVERRIDES = [
         ],
         "domain.vertices = [[0.0, 0.0]",
     ),
-    (  # collinear but for 1e-14: an area at round-off of the bounding box
+    (  # collinear but for 1e-14: folded onto itself, so not a simple polygon
         [
             "domain.shape=polygon",
             "domain.vertices=[[0, 0], [1, 0], [2, 0], [1, 1e-14]]",
             "domain.edge_names=['a', 'b', 'c', 'd']",
         ],
-        "must run counter-clockwise (positive area)",
+        "must be a simple polygon: vertices 1 and 3 coincide",
     ),
     (
         ["domain.shape=geo", "domain.file=missing.geo", "domain.parts=['a']"],
