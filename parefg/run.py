@@ -133,7 +133,7 @@ def run_scene(
     say = (lambda *a: print(*a, flush=True)) if comm.rank == 0 and not quiet else (lambda *a: None)
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
     disc = build_discretization(comm, scene)
-    sim = Simulation(comm, scene, disc)
+    sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
     say(
         f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "
         f"degree {scene.degree}, {'contact' if sim.law else 'no contact'}"
@@ -200,7 +200,7 @@ def _summary(comm, scene, disc, sim, start, errors=None, failed=False) -> dict:
         "newton_iterations": sim.newton_iterations,
         "linear_iterations": sim.linear_iterations,
         "factorizations": sim.solver.factorizations,
-        "max_newton_per_step": max((r["newton_iterations"] for r in sim.history), default=0),
+        "max_newton_per_step": sim.max_newton_per_step,
         # peak resident memory of the largest rank (ru_maxrss is in KiB on Linux)
         "peak_rss_mb": comm.allreduce(
             resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, op=MPI.MAX
