@@ -11,3 +11,15 @@ class SolverError(Exception):
     """The solver failed (divergence, NaN): one-line message, exit code 1."""
 
     exit_code = 1
+
+
+class Interrupted(SolverError):
+    """The run was stopped by a signal (Ctrl-C): exit code 128 + the signal number.
+
+    A SolverError for the CLI (one line, everything written so far kept readable), with
+    the shell's exit code of a process ended by that signal (130 for SIGINT).
+    """
+
+    def __init__(self, message: str, signal_number: int):
+        super().__init__(message)
+        self.exit_code = 128 + signal_number

@@ -55,6 +55,7 @@ XDMF_HEAD = (
     '    <Grid Name="TimeSeries" GridType="Collection" CollectionType="Temporal">\n'
 )
 XDMF_TAIL = "    </Grid>\n  </Domain>\n</Xdmf>\n"
+HISTORY_BLOCK = 256  # per-step rows kept in memory before they are stored
 SNAPSHOT_LEVEL = 3  # Xdmf > Domain > Grid (temporal) > Grid (snapshot)
 # HDF5 1.8 file format: groups keep their links in a fractal heap and a B-tree v2, so
 # flushing a group of k outputs writes the changed blocks only; the 1.6 symbol-table
@@ -129,7 +130,9 @@ class ResultWriter:
         self.n_outputs = 0
         self.xdmf_bytes_written = 0  # bytes handed to the XDMF file (rank 0), for tests
         self._layouts: dict[str, tuple] = {}  # field path pattern -> agreed (trailing, dtype)
-        self.history_rows = 0
+        self.history_rows = 0  # rows stored in /history
+        self._pending_rows: list[dict] = []  # rows not stored yet (rank 0 keeps them)
+        self._n_pending = 0
         self.file = _open_h5(comm, self.h5_path)
         self._write_points("mesh/coordinates", self.node_rows, node_coords)
         _raise_on_all(comm, node_original_index is None, "node_original_index given on some ranks")
@@ -190,18 +193,37 @@ class ResultWriter:
             external_work and any extra columns (rank 0's values are stored). A column
             reads NaN in rows that lack it (also in rows before it first appeared).
 
-        Not flushed (rows come every time step): the next write_step, flush or close is.
+        Rows are kept in memory and stored in blocks of HISTORY_BLOCK rows, and by the
+        next write_step, flush or close (rows come every time step; one HDF5 resize per
+        column and block instead of per row).  Collective, without communication until
+        a block is stored.
         """
-        row = self.comm.bcast({str(key): float(value) for key, value in row.items()}, root=0)
+        if self.comm.rank == 0:
+            self._pending_rows.append({str(key): float(value) for key, value in row.items()})
+        self._n_pending += 1
+        if self._n_pending >= HISTORY_BLOCK:
+            self._store_history()
+
+    def _store_history(self) -> None:
+        """Append the pending rows (rank 0's values) to /history; collective."""
+        if self._n_pending == 0:
+            return
+        rows = self.comm.bcast(self._pending_rows, root=0)
+        self._pending_rows, self._n_pending = [], 0
         history = self.file["history"]
-        for column in sorted(set(row) - set(history)):
+        for column in sorted(set().union(*rows) - set(history)):
             history.create_dataset(column, shape=(self.history_rows,), **GROWING_FLOATS)
+        first, last = self.history_rows, self.history_rows + len(rows)
         for column in sorted(history):
-            _append_scalar(self.comm, history[column], row.get(column, np.nan))
-        self.history_rows += 1
+            dataset = history[column]
+            dataset.resize((last,))
+            if self.comm.rank == 0:
+                dataset[first:last] = [row.get(column, np.nan) for row in rows]
+        self.history_rows = last
 
     def flush(self) -> None:
-        """Push everything written so far to disk; collective."""
+        """Push everything written so far (pending history rows too) to disk; collective."""
+        self._store_history()
         self.file.flush()
 
     def close(self, metadata: dict) -> None:
@@ -215,6 +237,7 @@ class ResultWriter:
         """
         if self.file is None:
             return
+        self._store_history()
         _store_attributes(self.file, self.comm.bcast(metadata, root=0))
         self.file.close()
         self.file = None
