@@ -83,6 +83,13 @@ class StopRequest:
     def __exit__(self, *exc) -> None:
         self._restore()
 
+    def reclaim(self) -> None:
+        """Put the handlers back after code that replaced them (gmsh's import sets SIGINT to
+        the default and its finalize restores the handler of its import time)."""
+        if self._previous and not self.signal:
+            for number in self._previous:
+                signal.signal(number, self._received)
+
     def _received(self, number, frame) -> None:
         self.signal = number
         self._restore()

@@ -144,6 +144,7 @@ def _run(comm, scene, out, quiet, stop, restart, observers, fail_at_step, checkp
     say = (lambda *a: print(*a, flush=True)) if comm.rank == 0 and not quiet else (lambda *a: None)
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
     disc = build_discretization(comm, scene)
+    stop.reclaim()  # meshing (gmsh) may have replaced the SIGINT handler
     sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
     say(
         f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "

@@ -33,11 +33,16 @@ def parse_axes(vary: list[str]) -> list[tuple[str, list[str]]]:
     return axes
 
 
+SWEEP_OUTPUT = "output.every=0"  # not the default time series: sweeps time the solver
+
+
 def run_sweep(comm, scene_source: str, vary: list[str], sets: list[str], out: str | None) -> list:
     """Run every case of the grid; return the rows.  Collective."""
     axes = parse_axes(vary)
     cases = list(itertools.product(*[values for _, values in axes]))
     # validate every case before running any (bad input: exit 2, nothing run)
+    # the timed cases write their final step only (a --set output.every=N still wins)
+    sets = [SWEEP_OUTPUT, *sets]
     scenes = [load_scene(scene_source, [*sets, *_overrides(axes, case)]) for case in cases]
     out_dir = choose_output_dir(comm, f"sweep-{scenes[0].name}", out)
     rows = []

@@ -49,11 +49,8 @@ def test_default_output_is_a_series_of_about_50_frames_from_t0(comm, run_dir):
     np.testing.assert_allclose(times, 0.02 * np.arange(51), rtol=1e-12, atol=1e-15)
 
 
-@pytest.mark.parametrize(
-    "n_steps, every, expected",
-    [(7, 1, range(8)), (130, 3, [*range(0, 130, 3), 130]), (10**6, 20000, None)],
-)
-def test_default_every_gives_about_50_frames(n_steps, every, expected):
+@pytest.mark.parametrize("n_steps, every", [(7, 1), (130, 3), (10**6, 20000)])
+def test_default_every_gives_about_50_frames(n_steps, every):
     scene = load_scene("square", [*TINY, "time.T=1", f"time.dt={1 / n_steps!r}"])
     assert scene.n_steps == n_steps and scene.output_every == every
 
