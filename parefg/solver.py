@@ -75,6 +75,8 @@ class ContactStepSolver:
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
         self.b = a_const.createVecRight()
         self.smooth = a_const.createVecRight()  # A u - b at the last residual evaluation
+        # work vectors of the line search and the energy, allocated once
+        self._direction, self._product, self._trial = (a_const.createVecRight() for _ in range(3))
         self.factorizations = 0
         self.jacobian_builds = 0
         self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
@@ -104,7 +106,7 @@ class ContactStepSolver:
     # -- J_n, its gradient and Jacobian ------------------------------------------
     def energy(self, u: PETSc.Vec) -> float:
         """J_n(u) up to a constant.  Collective."""
-        au = self.a_const.createVecLeft()
+        au = self._product
         self.a_const.mult(u, au)
         quadratic = 0.5 * au.dot(u) - self.b.dot(u)
         return quadratic + self.law.energy(*self.law.kinematics(u))
@@ -136,14 +138,16 @@ class ContactStepSolver:
         If every Gamma_C point is on the same linear piece at x and at x - y, J_n is one
         quadratic on the whole segment and the full Newton step is its exact minimizer.
         """
-        direction = -y
+        direction = self._direction
+        y.copy(direction)
+        direction.scale(-1.0)
         un, ut = self.law.kinematics(x)
         dn, dt = self.law.kinematics(direction)
         same_piece = np.array_equal(self.law.piece(un, ut), self.law.piece(un + dn, ut + dt))
         self._exact_piece = self.comm.allreduce(not same_piece) == 0
         before = self.energy(x) if self.record_energy else 0.0
         if not self._exact_piece:
-            ad = self.a_const.createVecLeft()
+            ad = self._product
             self.a_const.mult(direction, ad)
             curvature = ad.dot(direction)  # d^T A d
             start_slope = self.smooth.dot(direction)  # d^T (A x - b)
@@ -154,7 +158,8 @@ class ContactStepSolver:
 
             y.scale(_minimize_monotone(derivative))
         if self.record_energy:
-            trial = x.copy()
+            trial = self._trial
+            x.copy(trial)
             trial.axpy(-1.0, y)
             self.line_search_log.append((before, self.energy(trial)))
         return not self._exact_piece

@@ -34,6 +34,9 @@ def parse_axes(vary: list[str]) -> list[tuple[str, list[str]]]:
     return axes
 
 
+SWEEP_OUTPUT = "output.every=0"  # not the default time series: sweeps time the solver
+
+
 def run_sweep(
     comm,
     scene_source: str,
@@ -50,6 +53,8 @@ def run_sweep(
     axes = parse_axes(vary)
     cases = list(itertools.product(*[values for _, values in axes]))
     # validate every case before running any (bad input: exit 2, nothing run)
+    # the timed cases write their final step only (a --set output.every=N still wins)
+    sets = [SWEEP_OUTPUT, *sets]
     scenes = [load_scene(scene_source, [*sets, *_overrides(axes, case)]) for case in cases]
     for scene in scenes:
         check_problem_size(comm, scene, max_memory)
