@@ -131,15 +131,14 @@ def load_checkpoint(path: Path, sim) -> dict:
         with h5py.File(path, "r") as handle:
             _check_format(where, handle)
             attrs = _read_attributes(where, handle)
-            expected = _expected_shapes(sim)
-            data = {
-                name: _read_array(where, handle, name, shape) for name, shape in expected.items()
-            }
+            # the scene first: a different scene explains wrong shapes better than they do
+            _check_scene(where, attrs["params"], sim.scene.params)
+            _check_step(where, attrs["step"], sim.scene.n_steps)
+            _check_history(where, attrs["history"], sim.history[0], attrs["step"] * sim.scene.dt)
+            shapes = _expected_shapes(sim)
+            data = {name: _read_array(where, handle, name, shape) for name, shape in shapes.items()}
     except (OSError, RuntimeError, TypeError, ValueError) as error:  # not HDF5, truncated
         raise InputError(f"{where}: not a readable parefg checkpoint ({_reason(error)})") from None
-    _check_scene(where, attrs["params"], sim.scene.params)
-    _check_step(where, attrs["step"], sim.scene.n_steps)
-    _check_history(where, attrs["history"], sim.history[0], attrs["step"] * sim.scene.dt)
     data.update(step=attrs["step"], history=attrs["history"])
     return data
 

@@ -1,11 +1,14 @@
 """Checkpoint/restart and the runtime guards (NaN stop, injected failure), via the CLI."""
 
 import json
+import os
+import shutil
 
 import h5py
 import numpy as np
 import pytest
 from conftest import run_parefg
+from test_cli import assert_bad_input
 
 pytestmark = pytest.mark.serial_only
 
@@ -65,3 +68,125 @@ def test_non_finite_field_stops_the_run_and_keeps_output(tmp_path):
     with h5py.File(out / "result.h5", "r") as handle:
         times = handle["steps/time"][...]
         assert times.max() == pytest.approx(0.25)  # every step before the NaN was written
+
+
+# -- hostile checkpoints: each refused with one line, exit 2, nothing written --------------
+RESTART_ARGS = ["run", "square", "--quiet", "--set", "discretization.h=0.125"]
+RESTART_ARGS += ["--set", "time.dt=0.25"]  # 4 steps; the checkpoint is at step 3
+
+
+@pytest.fixture(scope="module")
+def checkpoint_run(tmp_path_factory):
+    """A run of 4 steps that checkpointed at step 3: its directory."""
+    run_dir = tmp_path_factory.mktemp("checkpointed") / "run"
+    result = run_parefg([*RESTART_ARGS, "--out", str(run_dir), "--checkpoint-every", "3"])
+    assert result.returncode == 0, result.stderr
+    return run_dir
+
+
+def _copy(checkpoint_run, tmp_path, edit=None):
+    """A copy of the good checkpoint, changed by ``edit(handle)``."""
+    path = tmp_path / "checkpoint.h5"
+    shutil.copy(checkpoint_run / "checkpoint.h5", path)
+    if edit is not None:
+        with h5py.File(path, "r+") as handle:
+            edit(handle)
+    return path
+
+
+def _replace(name, values):
+    def edit(handle):
+        del handle[name]
+        handle.create_dataset(name, data=values)
+
+    return edit
+
+
+def _set_attr(name, value):
+    def edit(handle):
+        handle.attrs[name] = value
+
+    return edit
+
+
+def _restart(path, tmp_path, extra=(), ranks=1):
+    out = tmp_path / "restarted"
+    result = run_parefg(
+        [*RESTART_ARGS, *extra, "--out", str(out), "--restart", str(path)], ranks=ranks, timeout=60
+    )
+    return result, out
+
+
+# case -> (edit of the good checkpoint, --set overrides, words of the message)
+BAD_CHECKPOINTS = {
+    "missing dataset": (lambda h: h.__delitem__("v"), [], ["lacks the dataset 'v'"]),
+    "wrong shape": (_replace("u", np.zeros((81, 3))), [], ["'u'", "(81, 2)"]),
+    "integer dtype": (_replace("a", np.zeros((81, 2), dtype=np.int64)), [], ["'a'", "float"]),
+    "NaN in u": (_replace("u", np.full((81, 2), np.nan)), [], ["'u'", "non-finite"]),
+    "bad params JSON": (_set_attr("params_json", "{not json"), [], ["not valid JSON"]),
+    "bad history JSON": (_set_attr("history_json", "[1, 2"), [], ["not valid JSON"]),
+    "history not a row": (_set_attr("history_json", '{"time": 0.75}'), [], ["history_json"]),
+    "step 1e6": (_set_attr("step", 10**6), [], ["step 1000000", "4 steps", "time.T"]),
+    "step -5": (_set_attr("step", -5), [], ["step = -5", ">= 0"]),
+    "step = n_steps": (_set_attr("step", 4), [], ["step 4", "nothing left"]),
+    "step not an integer": (_set_attr("step", 2.5), [], ["step = 2.5", "integer"]),
+    "other dt": (None, ["--set", "time.dt=0.125"], ["time.dt (0.25 in the checkpoint, 0.125"]),
+    "other degree": (None, ["--set", "discretization.degree=1"], ["discretization.degree"]),
+    "other E": (None, ["--set", "material.E=2"], ["material.E (1.0 in the checkpoint, 2"]),
+    "no format mark": (lambda h: h.attrs.__delitem__("format"), [], ["not a parefg checkpoint"]),
+}
+
+
+@pytest.mark.parametrize("case", BAD_CHECKPOINTS)
+def test_bad_checkpoint_is_refused_before_anything_is_written(checkpoint_run, tmp_path, case):
+    edit, extra, words = BAD_CHECKPOINTS[case]
+    result, out = _restart(_copy(checkpoint_run, tmp_path, edit), tmp_path, extra)
+    assert_bad_input(result, ["--restart", *words])
+    assert not out.exists()
+
+
+def test_foreign_result_file_is_not_a_checkpoint(checkpoint_run, tmp_path):
+    result, out = _restart(checkpoint_run / "result.h5", tmp_path)
+    assert_bad_input(result, ["result file, not a checkpoint"])
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory", "missing"])
+def test_restart_path_that_is_no_file(tmp_path, kind):
+    """A FIFO would block h5py forever (the 60 s timeout fails the test)."""
+    path = tmp_path / "checkpoint.h5"
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "directory":
+        path.mkdir()
+    words = {"fifo": "not a regular file", "directory": "a directory", "missing": "No such file"}
+    result, out = _restart(path, tmp_path)
+    assert_bad_input(result, ["--restart", words[kind]])
+    assert not out.exists()
+
+
+def test_failed_restart_leaves_the_out_directory_free(checkpoint_run, tmp_path):
+    """The same --out works once the checkpoint is right (no result.h5 left behind)."""
+    bad = _copy(checkpoint_run, tmp_path, _set_attr("step", -5))
+    result, out = _restart(bad, tmp_path)
+    assert result.returncode == 2
+    good = _copy(checkpoint_run, tmp_path)
+    result, out = _restart(good, tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert json.loads((out / "summary.json").read_text())["steps_done"] == 4
+
+
+def test_restart_may_extend_time_T(checkpoint_run, tmp_path):
+    """time.T is not part of the fingerprint: continue the 4-step run to 6 steps."""
+    result, out = _restart(_copy(checkpoint_run, tmp_path), tmp_path, ["--set", "time.T=1.5"])
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps_done"] == 6 and summary["n_steps"] == 6
+
+
+@pytest.mark.parametrize("case", ["wrong shape", "other E", "step -5"])
+def test_bad_checkpoint_on_two_ranks(checkpoint_run, tmp_path, case):
+    edit, extra, words = BAD_CHECKPOINTS[case]
+    result, out = _restart(_copy(checkpoint_run, tmp_path, edit), tmp_path, extra, ranks=2)
+    assert_bad_input(result, ["--restart", *words])
+    assert not out.exists()
