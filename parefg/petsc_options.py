@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import time
 from contextlib import contextmanager
 
 from petsc4py import PETSc
@@ -36,6 +37,9 @@ _READ_AT_FINALIZE = {
 # PETSc error codes that are the numerics failing, not the configuration being wrong.
 _SOLVER_FAILURES = {71: "zero pivot in LU", 77: "not converged", 81: "zero pivot in Cholesky"}
 _OUT_OF_MEMORY = 55
+# seconds a rank that failed waits for the others to leave the block before it aborts the
+# job: a rank stuck in a collective the failed rank left would otherwise wait forever
+AGREEMENT_TIMEOUT = 60.0
 
 
 @contextmanager
@@ -161,7 +165,20 @@ def petsc_configuration(comm, what: str, scene: dict[str, str]):
             raise
         kind = "solver" if error.ierr in _SOLVER_FAILURES else "input"
         failure = (kind, describe_petsc_error(error, what, scene))
+    _meet(comm, patience=None if failure is None else AGREEMENT_TIMEOUT)
     failures = [f for f in comm.allgather(failure) if f is not None]
     if failures:
         kind, message = failures[0]
         raise (SolverError if kind == "solver" else InputError)(message)
+
+
+def _meet(comm, patience: float | None) -> None:
+    """Wait until every rank arrives; abort the job after ``patience`` seconds.  Collective."""
+    if comm.size == 1:
+        return
+    request = comm.Ibarrier()
+    deadline = None if patience is None else time.monotonic() + patience
+    while not request.Test():
+        if deadline is not None and time.monotonic() > deadline:
+            comm.Abort(2)
+        time.sleep(0.001)

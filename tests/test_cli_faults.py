@@ -206,3 +206,23 @@ def test_solver_table_does_not_leak_into_the_next_run(tmp_path):
     plain = load_scene(comm.bcast(_scene_file(tmp_path, "") if comm.rank == 0 else None))
     # a leaked ksp_type = cg would take > 20 iterations again; the direct solve takes 2
     assert run_scene(comm, plain, out=f"{root}/second", quiet=True)["linear_iterations"] == 2
+
+
+# command line argparse refuses -> words of the message
+BAD_ARGUMENTS = {
+    "no scene": (["run"], ["run:", "scene"]),
+    "negative checkpoint interval": (["run", "square", "--checkpoint-every", "-3"], ["-3"]),
+    "unknown argument": (["run", "square", "--bogus"], ["--bogus"]),
+    "unknown command": (["frob"], ["frob"]),
+}
+
+
+@pytest.mark.serial_only
+@pytest.mark.parametrize("ranks", [1, 2])
+@pytest.mark.parametrize("case", BAD_ARGUMENTS)
+def test_bad_arguments_are_one_line(tmp_path, case, ranks):
+    args, words = BAD_ARGUMENTS[case]
+    result = run_parefg(args, ranks=ranks, timeout=60, cwd=tmp_path)
+    assert_bad_input(result, words)
+    assert result.stderr.count("parefg: error:") == 1 and "usage:" not in result.stderr
+    assert _listing(tmp_path) == []
