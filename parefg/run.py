@@ -129,6 +129,8 @@ def _uncreatable(path: Path, label: str) -> str | None:
         return f"{label}: cannot create it (a name of {longest} bytes; the limit is {name_max})"
     if len(os.fsencode(path.absolute())) >= path_max:
         return f"{label}: cannot create it (longer than the path limit of {path_max} bytes)"
+    if os.statvfs(ancestor).f_flag & os.ST_RDONLY:
+        return f"{label}: cannot create it ({ancestor} is on a read-only file system)"
     if not os.access(ancestor, os.W_OK | os.X_OK):
         return f"{label}: cannot create it ({ancestor} is not writable)"
     return None

@@ -8,9 +8,10 @@ serial_only where a test starts its own processes.
 
 import json
 import os
+import subprocess
 
 import pytest
-from conftest import run_parefg
+from conftest import PAREFG, run_parefg
 from mpi4py import MPI
 from petsc4py import PETSc
 from test_cli import QUICK, assert_bad_input
@@ -69,6 +70,34 @@ def test_read_only_parent_is_refused(tmp_path):
     result = run_parefg(["run", "square", *QUICK, "--quiet", "--out", str(locked / "run")])
     assert_bad_input(result, ["--out", "locked"])
     assert list(locked.iterdir()) == []
+
+
+def _read_only_mount_works(directory) -> bool:
+    probe = f"mount --bind {directory} {directory} && mount -o remount,ro,bind {directory}"
+    command = ["unshare", "-m", "--propagation", "private", "sh", "-c", probe]
+    try:
+        return subprocess.run(command, capture_output=True, timeout=30).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+@pytest.mark.serial_only
+def test_read_only_file_system_is_refused(tmp_path):
+    """Root writes into any directory, but not into a read-only mount (a private one here)."""
+    base = tmp_path / "ro"
+    base.mkdir()
+    if not _read_only_mount_works(base):
+        pytest.skip("no private read-only bind mount here (needs unshare and CAP_SYS_ADMIN)")
+    run = " ".join([PAREFG, "run", "square", *QUICK, "--quiet", "--out", str(base / "run")])
+    script = f"mount --bind {base} {base} && mount -o remount,ro,bind {base} && {run}"
+    result = subprocess.run(
+        ["unshare", "-m", "--propagation", "private", "sh", "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert_bad_input(result, ["--out", "read-only file system"])
+    assert list(base.iterdir()) == []
 
 
 # input found bad only after the scene loaded -> words of the message
