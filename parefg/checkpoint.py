@@ -14,7 +14,8 @@ discretization and the time integration: every section except ``time.T`` (a rest
 extend a run), ``[output]`` and ``[solver]`` (they change what is written and how each
 step is solved, not the solution), and the scene's name and description.  A restart
 with a different fingerprint is refused, naming the differing keys; so is a checkpoint
-at a step the scene does not have, or with an array of the wrong shape or type.
+at a step the scene does not have, with other node coordinates (the node cloud of a
+changed .geo file), or with an array of the wrong shape or type.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from parefg.timestepping import State
 
 VECTORS = ("u", "v", "a")
 FORMAT = "parefg-checkpoint"
+NODE_TOLERANCE = 1e-9  # relative to the domain's extent: same mesh up to gmsh's round-off
 # params that may differ between the run that wrote a checkpoint and its restart
 NOT_FINGERPRINTED = (("name",), ("description",), ("time", "T"), ("output",), ("solver",))
 
@@ -77,6 +79,7 @@ def write_checkpoint(comm, path: Path, sim, state: State, step: int) -> None:
     }
     if sim.law is not None:
         arrays["slip"] = _gather_rows(comm, disc.contact.rows, sim.law.slip, disc.n_contact)
+    arrays["nodes"] = _gather_rows(comm, node_rows, disc.nodes.points, disc.n_nodes)
     if comm.rank == 0:
         partial = path.with_name(path.name + ".partial")
         with h5py.File(partial, "w") as handle:
@@ -100,9 +103,10 @@ def read_checkpoint(comm, path: Path, sim) -> tuple[State, int, dict]:
     """
     disc = sim.disc
     message, data = None, None
+    nodes = _gather_rows(comm, disc.nodes.rows, disc.nodes.points, disc.n_nodes)
     if comm.rank == 0:
         try:
-            data = load_checkpoint(path, sim)
+            data = load_checkpoint(path, sim, nodes)
         except InputError as error:
             message = str(error)
     message, data = comm.bcast((message, data), root=0)
@@ -119,8 +123,11 @@ def read_checkpoint(comm, path: Path, sim) -> tuple[State, int, dict]:
     return State(**vectors), data["step"], data["history"]
 
 
-def load_checkpoint(path: Path, sim) -> dict:
+def load_checkpoint(path: Path, sim, nodes: np.ndarray) -> dict:
     """Read and validate a checkpoint for ``sim``'s scene (one rank; not collective).
+
+    ``nodes`` (n_nodes, 2) are the scene's node coordinates in the global order: the
+    checkpoint's must match (a changed .geo file or gmsh version moves the nodes).
 
     Returns the arrays (``u``, ``v``, ``a``, ``slip`` with contact), ``step`` and
     ``history`` (the last table row).  Raises InputError naming what is wrong.
@@ -137,6 +144,7 @@ def load_checkpoint(path: Path, sim) -> dict:
             _check_history(where, attrs["history"], sim.history[0], attrs["step"] * sim.scene.dt)
             shapes = _expected_shapes(sim)
             data = {name: _read_array(where, handle, name, shape) for name, shape in shapes.items()}
+            _check_nodes(where, data.pop("nodes"), nodes)
     except (OSError, RuntimeError, TypeError, ValueError) as error:  # not HDF5, truncated
         raise InputError(f"{where}: not a readable parefg checkpoint ({_reason(error)})") from None
     data.update(step=attrs["step"], history=attrs["history"])
@@ -197,7 +205,7 @@ def _read_attributes(where: str, handle) -> dict:
 
 def _expected_shapes(sim) -> dict[str, tuple]:
     """Shape of every dataset a checkpoint for ``sim`` must hold (global order)."""
-    shapes = {name: (sim.disc.n_nodes, 2) for name in VECTORS}
+    shapes = {name: (sim.disc.n_nodes, 2) for name in (*VECTORS, "nodes")}
     if sim.law is not None:
         shapes["slip"] = (sim.disc.n_contact, *np.shape(sim.law.slip)[1:])
     return shapes
@@ -217,6 +225,22 @@ def _read_array(where: str, handle, name: str, shape: tuple) -> np.ndarray:
     if not np.all(np.isfinite(values)):
         raise InputError(f"{where}: checkpoint dataset {name!r} holds non-finite values")
     return values
+
+
+def _check_nodes(where: str, stored: np.ndarray, nodes: np.ndarray) -> None:
+    """The same node cloud, to round-off relative to the domain's extent."""
+    extent = np.ptp(nodes, axis=0).max()
+    moved = np.abs(stored - nodes).max(axis=1)
+    if np.any(moved > NODE_TOLERANCE * extent):
+        first = int(np.argmax(moved > NODE_TOLERANCE * extent))
+        raise InputError(
+            f"{where}: node {first} is at {_point(stored[first])} in the checkpoint, at "
+            f"{_point(nodes[first])} now: another node cloud (changed .geo file or gmsh?)"
+        )
+
+
+def _point(xy: np.ndarray) -> str:
+    return f"({xy[0]:.6g}, {xy[1]:.6g})"
 
 
 def _flatten(tree, prefix: str = "") -> dict:

@@ -133,6 +133,7 @@ BAD_CHECKPOINTS = {
     "other dt": (None, ["--set", "time.dt=0.125"], ["time.dt (0.25 in the checkpoint, 0.125"]),
     "other degree": (None, ["--set", "discretization.degree=1"], ["discretization.degree"]),
     "other E": (None, ["--set", "material.E=2"], ["material.E (1.0 in the checkpoint, 2"]),
+    "moved node": (lambda h: h["nodes"].__setitem__(5, [0.3, 0.3]), [], ["node 5", "node cloud"]),
     "no format mark": (lambda h: h.attrs.__delitem__("format"), [], ["not a parefg checkpoint"]),
 }
 
