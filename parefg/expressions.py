@@ -30,6 +30,7 @@ MAX_DEPTH = 50  # nesting levels (a chain a + b + c counts as one level)
 MAX_INTEGER_DIGITS = 30  # digits of one integer literal
 MAX_EXPONENT = 64  # |n| for a numeric exponent in a ** n
 MAX_NUMBER_DIGITS = 1000  # digits of an exact number built by a ** n
+CONSTANT_DIGITS = 20  # digits of a constant subexpression evaluated at load (sin(10**25))
 
 #: Every symbol an expression may contain; ``nx``, ``ny`` (the outward unit
 #: normal) appear only in data derived from an exact solution, never in user text.
@@ -130,13 +131,34 @@ def _is_finite_real(expr: sympy.Expr) -> bool:
 
     Division by zero, sqrt(-1), log(0), ... leave sympy's non-real or infinite atoms;
     (-8)**(1/3) = 2 (-1)**(1/3) is complex without containing I; 1e300**64 is a finite
-    sympy Float but overflows a double.
+    sympy Float but overflows a double, and so does the constant exp(1000).
     """
     if expr.has(sympy.I, sympy.zoo, sympy.nan, sympy.oo, -sympy.oo):
         return False
     if any(abs(number) > sys.float_info.max for number in expr.atoms(sympy.Number)):
         return False
+    if not all(_is_double(part.evalf(CONSTANT_DIGITS)) for part in _constant_parts(expr)):
+        return False
     return expr.is_extended_real is not False
+
+
+def _constant_parts(expr: sympy.Expr):
+    """The largest subexpressions of expr without free symbols that are not atoms.
+
+    sympy combines constants across the tree: x*exp(700)*exp(700) becomes x*exp(1400).
+    """
+    if expr.is_Atom:
+        return
+    if not expr.free_symbols:
+        yield expr
+        return
+    for arg in expr.args:
+        yield from _constant_parts(arg)
+
+
+def _is_double(value: sympy.Expr) -> bool:
+    """Whether an evaluated constant is a real number within the range of a double."""
+    return bool(value.is_Number and value.is_finite and abs(value) <= sys.float_info.max)
 
 
 class _Translator:
@@ -158,7 +180,13 @@ class _Translator:
         handler = self._HANDLERS.get(type(node))
         if handler is None:
             raise self.reject(node)
-        return handler(self, node, depth)
+        expr = handler(self, node, depth)
+        # Constants are evaluated level by level: each evaluation starts from values in
+        # the range of a double, so it stays cheap (sin(exp(exp(exp(10)))) stops at the
+        # second exp instead of asking for 10**9565 digits of pi).
+        if not expr.free_symbols and not _is_finite_real(expr):
+            raise self.reject(node, "not a finite real number within the range of a double")
+        return expr
 
     def constant(self, node: ast.Constant, depth: int) -> sympy.Expr:
         value = node.value
@@ -226,7 +254,11 @@ class _Translator:
         for arg, arg_node in zip(args, node.args, strict=True):
             if not _is_finite_real(arg):
                 raise self.reject(arg_node, "not a finite real expression")
-        return function(*args)
+        result = function(*args)
+        if function is sympy.atan2 and result.has(sympy.I) and not result.free_symbols:
+            # sympy rewrites atan2 of some constants as -I*log(...), which reads as complex
+            return function(*args, evaluate=False)
+        return result
 
     _HANDLERS: dict[type, Callable[..., sympy.Expr]] = {
         ast.Constant: constant,
@@ -254,6 +286,46 @@ def _dirac_delta(argument, *order):
 _NUMPY_EXTRAS = {"amin": _minimum, "amax": _maximum, "DiracDelta": _dirac_delta}
 
 
+def numeric_form(expr: sympy.Expr) -> sympy.Expr:
+    """``expr`` with its constants as the doubles numpy should compute with.
+
+    Not collective.  A constant subexpression (sin(10**25), sqrt(2)) becomes its value
+    rounded to a double, computed by sympy to CONSTANT_DIGITS digits: numpy would take
+    sin of the Python int 10**25 as an object array and fail.  Integers and fractions
+    beyond 2**53 become doubles too (10**25 * x), and every Float is printed with the 17
+    digits that identify a double (sympy prints 15).
+    """
+    memo: dict[sympy.Basic, sympy.Expr] = {}
+
+    def fold(node: sympy.Basic) -> sympy.Basic:
+        if node not in memo:
+            if node.is_Float or (node.is_Rational and max(abs(node.p), node.q) > 2**53):
+                memo[node] = _double(node)
+            elif node.is_Atom:
+                memo[node] = node
+            elif not node.free_symbols:
+                memo[node] = _double(node.evalf(CONSTANT_DIGITS), node)
+            else:
+                args = [fold(arg) for arg in node.args]
+                same = all(new is old for new, old in zip(args, node.args, strict=True))
+                memo[node] = node if same else node.func(*args)
+        return memo[node]
+
+    return fold(expr)
+
+
+def _double(value: sympy.Expr, otherwise: sympy.Expr | None = None) -> sympy.Expr:
+    """A sympy Float equal to the double nearest ``value``, printed with 17 digits.
+
+    ``otherwise`` (default ``value``) when value is not a real number (parse_expression
+    admits none; derived data only combine what it admitted).
+    """
+    try:
+        return sympy.Float(float(value), 17)
+    except TypeError:
+        return value if otherwise is None else otherwise
+
+
 def compile_field(
     exprs: Sequence[sympy.Expr], args: Sequence[str] = VARIABLES
 ) -> Callable[..., np.ndarray]:
@@ -277,7 +349,8 @@ def compile_field(
         shape, and the result is a fresh, writable float array.
     """
     symbols = [SYMBOLS[name] for name in args]
-    components = sympy.lambdify(symbols, list(exprs), modules=[_NUMPY_EXTRAS, "numpy"])
+    numeric = [numeric_form(sympy.sympify(expr, strict=True)) for expr in exprs]
+    components = sympy.lambdify(symbols, numeric, modules=[_NUMPY_EXTRAS, "numpy"])
 
     def field(*values):
         shape = np.broadcast(*values).shape

@@ -29,6 +29,7 @@ import sympy
 
 from parefg.errors import InputError
 from parefg.expressions import SYMBOLS, compile_field, parse_expression
+from parefg.scene_checks import SignChecks
 from parefg.scene_schema import (
     BOUNDARY_KEYS,
     CELLS,
@@ -48,6 +49,7 @@ from parefg.scene_schema import (
     step_count,
     validate,
 )
+from parefg.symbolic import DerivativeBudget, is_identically_zero
 
 __all__ = [
     "BOUNDARY_KEYS",
@@ -77,6 +79,7 @@ __all__ = [
 ]
 
 SCENES_DIR = Path(__file__).with_name("scenes")
+MAX_SCENE_BYTES = 2**24  # a scene is a few hundred bytes; a long polygon a few hundred KB
 
 Field = Callable[..., np.ndarray]
 
@@ -200,13 +203,28 @@ def _read_source(source: str) -> tuple[str, dict, Path]:
         raise InputError(f"scene {source!r}: no such built-in scene or file (built-in: {known})")
     name = path.stem
     try:
+        if path.stat().st_size > MAX_SCENE_BYTES:
+            size = path.stat().st_size
+            raise InputError(f"scene {name}: {path} has {size} bytes (at most {MAX_SCENE_BYTES})")
         with path.open("rb") as stream:
             raw = tomllib.load(stream)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"scene {name}: TOML syntax error in {path}: {exc}") from None
+    except (RecursionError, MemoryError, ValueError) as exc:
+        raise InputError(f"scene {name}: cannot parse {path}: {_toml_failure(exc)}") from None
     except OSError as exc:
         raise InputError(f"scene {name}: cannot read {path}: {exc.strerror}") from None
     return name, raw, path.resolve().parent
+
+
+def _toml_failure(exc: Exception) -> str:
+    """Why tomllib failed other than by a syntax error, in one line."""
+    if isinstance(exc, RecursionError):
+        return "arrays or tables nested too deeply"
+    if isinstance(exc, MemoryError):
+        return "out of memory"
+    # Python refuses to convert integers of more than 4300 digits
+    return str(exc).split(";")[0].split(":")[0]
 
 
 def _apply_override(raw: dict, text: str, where: str) -> None:
@@ -219,6 +237,9 @@ def _apply_override(raw: dict, text: str, where: str) -> None:
         value = tomllib.loads("v = " + value_text)["v"]
     except tomllib.TOMLDecodeError:
         value = value_text.strip()
+    except (RecursionError, MemoryError, ValueError) as exc:
+        shown = repr(text) if len(text) <= 60 else repr(text[:57] + "...")
+        raise InputError(f"{where}: --set {shown}: {_toml_failure(exc)}") from None
     table = raw
     for depth, key in enumerate(keys[:-1]):
         table = table.setdefault(key, {})
@@ -251,7 +272,9 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
     mechanics = None
     if "exact" in params:
         exact_u = _fields(where, "exact.u", params["exact"]["u"])
-        mechanics = _Mechanics(exact_u, lam, mu, rho, time["scheme"])
+        budget = DerivativeBudget(where, "exact.u")
+        mechanics = _Mechanics(exact_u, lam, mu, rho, time["scheme"], budget)
+    checks = SignChecks(where, params, E)
     return Scene(
         name=params["name"],
         params=params,
@@ -270,7 +293,7 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         n_steps=step_count(where, time),
         **{f"alpha_{kind}": penalty[f"alpha_{kind}"] for kind in PENALTY_KINDS},
         boundaries={
-            name: _boundary(where, name, table, mechanics)
+            name: _boundary(where, name, table, mechanics, checks)
             for name, table in params.get("boundary", {}).items()
         },
         body_force=_vector_field(where, "loads.f", params["loads"].get("f"), mechanics, "f"),
@@ -284,26 +307,42 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
 
 
 class _Mechanics:
-    """Symbolic elasticity of an exact solution u(x, y, t) (plane strain)."""
+    """Symbolic elasticity of an exact solution u(x, y, t) (plane strain).
 
-    def __init__(self, u: list[sympy.Expr], lam: float, mu: float, rho: float, scheme: str):
+    Every derivative goes through ``budget``, which refuses an exact solution whose
+    derived data would be too large to compute, compile or evaluate.
+    """
+
+    def __init__(
+        self,
+        u: list[sympy.Expr],
+        lam: float,
+        mu: float,
+        rho: float,
+        scheme: str,
+        budget: DerivativeBudget,
+    ):
         x, y, t, nx, ny = (SYMBOLS[s] for s in ("x", "y", "t", "nx", "ny"))
+        diff = budget.diff
         self.u = u
-        self.grad = sympy.Matrix(2, 2, lambda i, j: sympy.diff(u[i], (x, y)[j]))
+        self.grad = sympy.Matrix(2, 2, lambda i, j: diff(u[i], (x, y)[j]))
+        self.velocity = [diff(ui, t) for ui in u]
         eps = (self.grad + self.grad.T) / 2
         sigma = sympy.Float(lam) * eps.trace() * sympy.eye(2) + 2 * sympy.Float(mu) * eps
-        div_sigma = [sympy.diff(sigma[i, 0], x) + sympy.diff(sigma[i, 1], y) for i in range(2)]
-        inertia = [sympy.Float(rho) * sympy.diff(ui, t, 2) for ui in u]
+        div_sigma = [diff(sigma[i, 0], x) + diff(sigma[i, 1], y) for i in range(2)]
+        inertia = [sympy.Float(rho) * diff(vi, t) for vi in self.velocity]
         if scheme == "static":
             inertia = [0, 0]
         traction = sigma * sympy.Matrix([nx, ny])
+        tangential = -ny * traction[0] + nx * traction[1]
+        budget.charge(*traction, tangential)
         self.derived = {
             "f": [inertia[i] - div_sigma[i] for i in range(2)],
             "value": list(u),
             "traction": list(traction),
-            "friction": [sympy.Abs(-ny * traction[0] + nx * traction[1])],
+            "friction": [sympy.Abs(tangential)],
             "u": [ui.subs(t, 0) for ui in u],
-            "v": [sympy.diff(ui, t).subs(t, 0) for ui in u],
+            "v": [vi.subs(t, 0) for vi in self.velocity],
         }
 
     def solution(self) -> ExactSolution:
@@ -317,7 +356,7 @@ class _Mechanics:
         return ExactSolution(
             exprs=list(self.u),
             u=compile_field(self.u),
-            v=compile_field([sympy.diff(ui, SYMBOLS["t"]) for ui in self.u]),
+            v=compile_field(self.velocity),
             grad=grad,
         )
 
@@ -340,7 +379,7 @@ def _initial(where: str, key: str, values, mechanics) -> Field:
     return compile_field(exprs, ("x", "y"))
 
 
-def _boundary(where: str, name: str, table: dict, mechanics) -> BoundaryCondition:
+def _boundary(where: str, name: str, table: dict, mechanics, checks) -> BoundaryCondition:
     """BoundaryCondition of one [boundary.NAME] table."""
     kind, prefix = table["type"], f"boundary.{name}"
     with_normal = ("x", "y", "t", "nx", "ny")
@@ -352,33 +391,21 @@ def _boundary(where: str, name: str, table: dict, mechanics) -> BoundaryConditio
             where, f"{prefix}.traction", table.get("traction"), mechanics, "traction", with_normal
         )
         return BoundaryCondition(name, kind, traction=traction)
-    gap = compile_field([_expr(where, f"{prefix}.gap", table["gap"], ("x", "y"))], ("x", "y"))
+    gap_expr = _expr(where, f"{prefix}.gap", table["gap"], ("x", "y"))
+    checks.nonnegative(name, "gap", table["gap"], gap_expr)
+    gap = compile_field([gap_expr], ("x", "y"))
     given = table.get("friction")
-    friction = (
-        [_expr(where, f"{prefix}.friction", given)]
-        if given is not None
-        else mechanics.derived["friction"]
-    )
+    if given is not None:
+        friction = [_expr(where, f"{prefix}.friction", given)]
+        checks.nonnegative(name, "friction", given, friction[0])
+    else:  # |tau . sigma n| >= 0
+        friction = mechanics.derived["friction"]
     friction_field = compile_field(friction, with_normal)
     return BoundaryCondition(
         name,
         kind,
         gap=lambda x, y: gap(x, y)[0],
         friction=lambda x, y, t, nx, ny: friction_field(x, y, t, nx, ny)[0],
-        friction_is_zero=_is_zero(friction[0], friction_field),
+        # derived friction is homogeneous in (nx, ny): zero for all normals iff for unit ones
+        friction_is_zero=is_identically_zero(friction[0], [SYMBOLS[s] for s in with_normal]),
     )
-
-
-def _is_zero(expr: sympy.Expr, field: Field) -> bool:
-    """Whether ``expr`` is identically zero, the same answer on every rank.
-
-    A nonzero value at a few fixed sample points settles "no" cheaply; only an
-    expression that vanishes there is simplified symbolically.
-    """
-    samples = np.random.default_rng(seed=12345).uniform(0.05, 0.95, size=(4, 7))
-    angle = 2 * np.pi * samples[3]
-    with np.errstate(all="ignore"):
-        values = field(samples[0], samples[1], samples[2], np.cos(angle), np.sin(angle))
-    if np.any(np.isfinite(values) & (values != 0)):
-        return False
-    return sympy.simplify(expr) == 0

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from parefg.errors import InputError
+from parefg.geometry import BOX_PART_NAMES, Z_EDGE_NAMES, Z_VERTICES
 from parefg.jitter import MAX_JITTER
 
 SECTIONS = (
@@ -44,6 +45,7 @@ DEFAULT_QUADRATURE = {1: 3, 2: 5, 3: 7}
 PENALTY_KINDS = ("dirichlet", "contact", "friction")
 STEP_TOLERANCE = 1e-9  # relative distance of T / dt from an integer
 MAX_STEPS = 10**9  # beyond this T / dt is a typo, and is no longer checked as an integer
+AREA_TOLERANCE = 1e-12  # relative to the size squared: a polygon with less area is degenerate
 
 _REQUIRED = object()
 
@@ -147,6 +149,14 @@ def _expression(table: _Table, key: str, value):
     return value
 
 
+def _nonnegative(table: _Table, key: str, value):
+    """An expression whose value must be >= 0: numbers are checked here, strings at load."""
+    value = _expression(table, key, value)
+    if isinstance(value, int | float) and not value >= 0:
+        raise table.fail(key, value, "must be >= 0")
+    return value
+
+
 def _vector(table: _Table, key: str, value) -> list:
     if not isinstance(value, list) or len(value) != 2:
         raise table.fail(key, value, "must be a list of two numbers or expression strings")
@@ -192,10 +202,11 @@ def _polygon_parts(table: _Table, source_dir: Path) -> list[str]:
     names = table.take("edge_names", _names)
     if len(names) != len(vertices):
         raise table.fail("edge_names", names, f"needs one name per edge ({len(vertices)})")
-    xy = np.array(vertices)  # (n_vertices, 2)
-    # Shoelace formula: positive signed area <=> counter-clockwise.
+    xy = np.array(vertices) - vertices[0]  # (n_vertices, 2), shifted: less cancellation
+    # Shoelace formula: positive signed area <=> counter-clockwise.  An area at round-off
+    # of the polygon's size squared (collinear vertices) has no sign to trust.
     area = 0.5 * np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1])
-    if not area > 0:
+    if not area > AREA_TOLERANCE * np.max(np.ptp(xy, axis=0)) ** 2:
         raise table.fail("vertices", vertices, "must run counter-clockwise (positive area)")
     return list(dict.fromkeys(names))
 
@@ -224,6 +235,27 @@ DOMAIN_SHAPES = {
 def _read_domain(table: _Table, source_dir: Path) -> list[str]:
     shape = table.take("shape", _choice(*DOMAIN_SHAPES), "square")
     return DOMAIN_SHAPES[shape](table, source_dir)
+
+
+def part_segments(domain: dict) -> dict[str, np.ndarray] | None:
+    """Boundary part name -> (n, 2, 2) segments [start, end] of a validated domain's outline.
+
+    None for a .geo domain, whose curves only gmsh knows.
+    """
+    shape = domain["shape"]
+    if shape == "geo":
+        return None
+    if shape == "polygon":
+        vertices, names = domain["vertices"], domain["edge_names"]
+    elif shape == "z":
+        vertices, names = Z_VERTICES, Z_EDGE_NAMES
+    else:
+        (x0, y0), (lx, ly) = domain.get("origin", (0, 0)), domain.get("size", (1, 1))
+        vertices = [(x0, y0), (x0 + lx, y0), (x0 + lx, y0 + ly), (x0, y0 + ly)]
+        names = BOX_PART_NAMES
+    start = np.asarray(vertices, dtype=float)  # (n_edges, 2); edge i runs to vertex i + 1
+    segments = np.stack([start, np.roll(start, -1, axis=0)], axis=1)  # (n_edges, 2, 2)
+    return {name: segments[[n == name for n in names]] for name in dict.fromkeys(names)}
 
 
 def _read_discretization(table: _Table) -> None:
@@ -266,11 +298,20 @@ def elastic_constants(material: dict) -> tuple[float, float, float, float]:
 
 
 def _read_time(table: _Table) -> None:
-    table.take("scheme", _choice(*SCHEMES), "newmark")
+    """Newmark is unconditionally stable iff 2 beta >= gamma >= 1/2; the rest is refused."""
+    scheme = table.take("scheme", _choice(*SCHEMES), "newmark")
     T = table.take("T", _number, 1.0, POSITIVE)
     table.take("dt", _number, 0.1, (lambda v: 0 < v <= T, f"must be > 0 and <= time.T = {T}"))
-    table.take("beta", _number, 0.5, (lambda v: 0 < v <= 1, "must be in (0, 1]"))
-    table.take("gamma", _number, 0.5, (lambda v: 0.5 <= v <= 1, "must be in [0.5, 1]"))
+    beta = table.take("beta", _number, 0.5, (lambda v: 0 < v <= 1, "must be in (0, 1]"))
+    gamma = table.take("gamma", _number, 0.5, (lambda v: 0.5 <= v <= 1, "must be in [0.5, 1]"))
+    if scheme == "newmark" and 2 * beta < gamma:
+        raise table.fail(
+            "beta",
+            beta,
+            f"Newmark with beta < gamma / 2 = {gamma / 2:g} is only conditionally stable "
+            "(its explicit range is not supported): need 2 beta >= gamma, "
+            "e.g. beta = 0.25, gamma = 0.5",
+        )
     step_count(table.where, table.out)
 
 
@@ -307,7 +348,7 @@ def _read_penalty(table: _Table, E: float, h: float) -> None:
 BOUNDARY_KEYS = {
     "dirichlet": (("value", _vector, [0, 0], True),),
     "neumann": (("traction", _vector, [0, 0], True),),
-    "contact": (("gap", _expression, 0, False), ("friction", _expression, 0, True)),
+    "contact": (("gap", _nonnegative, 0, False), ("friction", _nonnegative, 0, True)),
 }
 
 

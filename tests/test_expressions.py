@@ -2,6 +2,7 @@
 
 import time
 
+import mpmath
 import numpy as np
 import pytest
 import sympy
@@ -110,6 +111,11 @@ MALICIOUS = [
     "eval('1')",
     "\x00",
     "",
+    "exp(1000)",  # constants beyond a double: numpy would compute inf
+    "x * exp(700) * exp(700)",  # sympy combines them into exp(1400)
+    "sin(exp(exp(exp(10))))",  # evaluated level by level, never sin of 10**9565
+    "e**e**e**e**3",
+    "atan2(0, 0)",
 ]
 
 
@@ -149,3 +155,28 @@ def test_resource_limits_are_exact():
     assert parse_expression(nested, "k").free_symbols == {SYMBOLS["x"]}
     with pytest.raises(InputError, match="nested"):
         parse_expression("sin(" + nested + ")", "k")
+
+
+def test_huge_integers_evaluate_to_their_values():
+    """sin(10**25) is the number sin(10**25), not a numpy error on a Python int."""
+    field = compile_field(
+        [parse_expression(text, "k") for text in ("sin(10**25)", "10**25 * x", "sin(10**25 * x)")]
+    )
+    values = field(X, Y, T)
+    np.testing.assert_allclose(values[0], float(mpmath.sin(10**25)), rtol=1e-15)
+    np.testing.assert_allclose(values[1], 1e25 * X, rtol=1e-15)
+    assert np.all(np.isfinite(values[2])) and np.all(np.abs(values[2]) <= 1)
+
+
+def test_numbers_keep_every_digit_of_a_double():
+    """sympy prints Floats with 15 digits; the compiled field must use the double given."""
+    given = 0.12345678901234567
+    field = compile_field([parse_expression(f"{given!r} + x * sqrt(2)", "k")])
+    np.testing.assert_array_equal(field(X, Y, T)[0], given + X * np.sqrt(2))
+
+
+def test_atan2_of_constants_is_real():
+    """sympy writes atan2(1 + e**2, tan(sin(e))) as -I*log(...): still a real number."""
+    expr = parse_expression("arctan2(1 + e**2, tan(sin(e))) * x", "k")
+    expected = np.arctan2(1 + np.e**2, np.tan(np.sin(np.e))) * X
+    np.testing.assert_allclose(compile_field([expr])(X, Y, T)[0], expected, rtol=1e-15)

@@ -382,7 +382,13 @@ simple_expression = st.one_of(
     st.sampled_from(["x", "sin(pi*x)*t", "(1 - cos(t)) * (1 + x) * exp(y)", "0.01*y*x"]),
 )
 vector = st.lists(simple_expression, min_size=2, max_size=2)
-gap = st.one_of(st.floats(0, 0.1), st.sampled_from(["0.01 * x * (1 - x)", "0.1*abs(y)"]))
+# gap s >= 0 and friction bound g >= 0 on every domain below (checked at load)
+gap = st.one_of(st.floats(0, 0.1), st.sampled_from(["0.01 * (x * (1 - x))**2", "0.1*abs(y)"]))
+friction_bound = st.one_of(
+    st.floats(0, 2),
+    st.integers(0, 3),
+    st.sampled_from(["x**2", "abs(sin(pi*x))*t", "(1 - cos(t)) * (1 + x**2) * exp(y)", "0.01*y*y"]),
+)
 
 
 @st.composite
@@ -411,7 +417,7 @@ def boundary_tables(draw, part_names, has_exact):
         for key in data[kind]:
             if draw(st.booleans()) or (key == "friction" and not has_exact):
                 continue
-            table[key] = draw({"gap": gap, "friction": simple_expression}.get(key, vector))
+            table[key] = draw({"gap": gap, "friction": friction_bound}.get(key, vector))
         if kind == "contact" and "friction" not in table and not has_exact:
             table["friction"] = draw(st.sampled_from([0, 0.5, "abs(x) + t"]))
         tables[name] = table

@@ -1,6 +1,7 @@
 """Scenes: schema validation, defaults, overrides and data derived from [exact]."""
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -260,6 +261,58 @@ def test_friction_is_zero_only_when_identically_zero(tmp_path):
     )
 
 
+# (friction bound, identically zero?): round-off of large terms is zero, a tiny term is not
+FRICTIONS = [
+    ("1e6 * sin(x)**2 + 1e6 * cos(x)**2 - 1e6", True),
+    ("abs(sin(x + t)**2 + cos(x + t)**2 - 1) * exp(y)", True),
+    ("(x + y)**3 - x**3 - 3*x**2*y - 3*x*y**2 - y**3", True),
+    ("1e-20 * x", False),
+    ("1e-20 * x + sin(x)**2 + cos(x)**2 - 1", False),
+    ("abs(x - 0.5) - (x - 0.5)", False),  # zero only for x > 0.5
+    ("max(x, 0.999) - 0.999", False),  # zero only for x < 0.999
+    ("sqrt(x - 2) * (sin(x)**2 + cos(x)**2 - 1)", False),  # not real at the samples
+]
+
+
+@pytest.mark.parametrize("friction, zero", FRICTIONS, ids=[f for f, _ in FRICTIONS])
+def test_friction_zero_test_is_scale_aware(friction, zero):
+    scene = load_scene("square", [f"boundary.bottom.friction={friction}"])
+    assert scene.boundaries["bottom"].friction_is_zero is zero
+
+
+# Scene values that kept the loader busy for minutes: sympy's simplify on a friction bound
+# that is NaN at the samples, and the second derivatives of a product of 71 sines.
+SLOW_FRICTION = (
+    "sqrt(x-2)*(sin(x)+sin(2*x)+sin(3*x)+sin(4*x)+sin(5*x))**12"
+    "*(cos(y)+cos(2*y)+cos(3*y)+cos(4*y))**12"
+)
+SINES = "*".join(f"sin({k}*x)" for k in range(1, 72))
+SINES_18 = "*".join(f"sin({k}*x + y)" for k in range(1, 19))
+
+
+def test_nan_friction_bound_loads_in_seconds():
+    """Not real on the square: the solver meets it at run time; loading does not hang."""
+    start = time.perf_counter()
+    scene = load_scene("square", [f"boundary.bottom.friction={SLOW_FRICTION}"])
+    assert time.perf_counter() - start < 5
+    assert not scene.boundaries["bottom"].friction_is_zero
+
+
+@pytest.mark.parametrize("u", [[SINES, "0"], [SINES_18, SINES_18]], ids=["71", "18x2"])
+def test_too_large_exact_solution_is_refused_in_seconds(tmp_path, u):
+    start = time.perf_counter()
+    message = load_error(write(tmp_path, f"[exact]\nu = {json.dumps(u)}\n"))
+    assert time.perf_counter() - start < 5
+    assert message.startswith("scene custom: exact.u: too large to differentiate symbolically")
+
+
+def test_moderate_exact_solution_is_derived():
+    """Well inside the budget: a product of 3 sines and 3 exponentials in both components."""
+    u = "*".join(f"sin({k}*x + t)*exp(-{k}*y)" for k in range(1, 4))
+    scene = load_scene("square", [f"exact.u=['{u}', '{u}']"])
+    assert np.all(np.isfinite(scene.body_force(*POINTS, 0.5)))
+
+
 # (overrides on the square scene, text the one-line message must contain)
 BAD_OVERRIDES = [
     (["foo.bar=1"], "[foo]: unknown section"),
@@ -310,10 +363,47 @@ BAD_OVERRIDES = [
         ],
         "domain.vertices = [[0.0, 0.0]",
     ),
+    (  # collinear but for 1e-14: an area at round-off of the bounding box
+        [
+            "domain.shape=polygon",
+            "domain.vertices=[[0, 0], [1, 0], [2, 0], [1, 1e-14]]",
+            "domain.edge_names=['a', 'b', 'c', 'd']",
+        ],
+        "must run counter-clockwise (positive area)",
+    ),
     (
         ["domain.shape=geo", "domain.file=missing.geo", "domain.parts=['a']"],
         "domain.file = 'missing.geo': no such file",
     ),
+    (
+        ["time.beta=0.2"],
+        "time.beta = 0.2: Newmark with beta < gamma / 2 = 0.25 is only conditionally stable",
+    ),
+    (["time.gamma=1", "time.beta=0.49"], "time.beta = 0.49: Newmark with beta < gamma / 2 = 0.5"),
+    (["boundary.bottom.friction=-1"], "boundary.bottom.friction = -1: must be >= 0"),
+    (["boundary.bottom.gap=-0.1"], "boundary.bottom.gap = -0.1: must be >= 0"),
+    (["boundary.bottom.gap='-1e-20'"], "boundary.bottom.gap = '-1e-20': must be >= 0"),
+    (
+        ["boundary.bottom.friction=x - 0.5"],
+        "boundary.bottom.friction = 'x - 0.5': must be >= 0 (the friction bound g), "
+        "is -0.46875 at x = 0.03125, y = 0, t = 0",
+    ),
+    (
+        ["boundary.bottom.friction=cos(3*t)", "time.T=2"],
+        "boundary.bottom.friction = 'cos(3*t)': must be >= 0 (the friction bound g), "
+        "is -0.989992 at x = 0.03125, y = 0, t = 1",
+    ),
+    (
+        ["boundary.bottom.gap=0.1*(x - 0.5)"],
+        "boundary.bottom.gap = '0.1*(x - 0.5)': must be >= 0 (the initial gap s to the obstacle)",
+    ),
+    (
+        ["discretization.degree=100000000000000000000000000000000"],
+        "discretization.degree = 100000000000000000000000000000000: must be in 1..3",
+    ),
+    (["discretization.quadrature=-10000000000000000000000"], "must be in 1..10"),
+    (["discretization.seed=18446744073709551616"], "must be in 0..2**63 - 1"),
+    (["loads.f=['exp(1000)', 0]"], "loads.f[0]: 'exp(1000)' is not allowed"),
     (["discretization.h"], "--set 'discretization.h': expected section.key=value"),
     (["h=0.1"], "--set 'h=0.1': expected section.key=value"),
     (["discretization..h=1"], "expected section.key=value"),
@@ -342,3 +432,78 @@ def test_bad_files(tmp_path):
     both = write(tmp_path, "[material]\nE = 1\nlam = 1\nmu = 1\n")
     assert "not both" in load_error(both)
     assert "custom: name = 1: must be a string" in load_error(write(tmp_path, "name = 1\n"))
+
+
+# TOML that tomllib itself cannot take: recursion, and integers Python refuses to convert
+UNPARSABLE = [
+    ("a = " + "[" * 100_000, "arrays or tables nested too deeply"),
+    ("a = " + "{b = " * 100_000, "arrays or tables nested too deeply"),
+    ("[discretization]\nseed = " + "1" * 5000, "Exceeds the limit (4300 digits)"),
+]
+
+
+@pytest.mark.parametrize("text, expected", UNPARSABLE, ids=["arrays", "tables", "digits"])
+def test_unparsable_toml_is_one_line(tmp_path, text, expected):
+    message = load_error(write(tmp_path, text))
+    assert message.startswith("scene custom: cannot parse ") and expected in message
+    value = text.partition("= ")[2]
+    message = load_error("square", [f"discretization.h={value}"])
+    assert message.startswith("scene square: --set 'discretization.h=") and expected in message
+    assert len(message) < 200
+
+
+# (domain, part, key, accepted, refused): the accepted value is >= 0 on the part, though
+# not on the domain's bounding box; the refused one is negative somewhere on the part
+SIGNS_ON_THE_PART = [
+    ({}, "bottom", "friction", "0.5 - y", "0.5 - y - x"),
+    ({}, "right", "gap", "x - 1", "x - 1.001"),
+    (
+        {"shape": "rectangle", "size": [1, 1], "origin": [10, 0]},
+        "bottom",
+        "gap",
+        "x - 10",
+        "x - 11",
+    ),
+    ({"shape": "z"}, "top", "friction", "(y - 1) * t + x * (1 - x)", "(y - 1) * t + x - 0.1"),
+    # zero on the slanted edge, -1e-17 at sample points that round-off puts below it
+    (
+        {
+            "shape": "polygon",
+            "vertices": [[0, 0], [1, 0.3], [1, 1], [0, 1]],
+            "edge_names": ["slope", "right", "top", "left"],
+        },
+        "slope",
+        "gap",
+        "0.3 * x - y",
+        "0.3 * x - y - 1e-6",
+    ),
+]
+
+
+@pytest.mark.parametrize("domain, part, key, accepted, refused", SIGNS_ON_THE_PART, ids=range(5))
+def test_signs_are_checked_on_the_contact_part(tmp_path, domain, part, key, accepted, refused):
+    text = "[domain]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in domain.items())
+    text += f'[boundary.{part}]\ntype = "contact"\n{key} = "{accepted}"\n'
+    assert load_scene(write(tmp_path, text)).boundaries[part].kind == "contact"
+    message = load_error(write(tmp_path, text.replace(accepted, refused)))
+    assert f"boundary.{part}.{key} = '{refused}': must be >= 0" in message
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ["time.beta=0.25"],
+        ["time.beta=0.3", "time.gamma=0.6"],
+        ["time.scheme=static", "time.beta=0.1"],
+    ],
+)
+def test_unconditionally_stable_newmark_and_static_are_accepted(overrides):
+    scene = load_scene("square", overrides)
+    assert scene.scheme == "static" or 2 * scene.beta >= scene.gamma
+
+
+def test_huge_scene_file_is_refused_before_reading(tmp_path):
+    path = tmp_path / "huge.toml"
+    with path.open("wb") as stream:
+        stream.truncate(2**24 + 1)  # sparse: no disk used, and never read
+    assert "huge.toml has 16777217 bytes (at most 16777216)" in load_error(str(path))
