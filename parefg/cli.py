@@ -68,6 +68,12 @@ def _count(text: str) -> int:
 _count.__name__ = "non-negative integer"  # argparse names the type in its message
 
 
+MAX_MEMORY_HELP = (
+    "memory a run may use on each machine, in GB (default: 80%% of its available memory); "
+    "a scene estimated to need more is refused before meshing"
+)
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="parefg",
@@ -96,11 +102,13 @@ def _parser() -> argparse.ArgumentParser:
         help="write DIR/checkpoint.h5 (u, v, a, slip, step) every N steps",
     )
     run.add_argument("--restart", metavar="FILE", help="continue from a checkpoint file")
+    run.add_argument("--max-memory", type=float, metavar="GB", help=MAX_MEMORY_HELP)
     sweep = sub.add_parser("sweep", help="run a grid of cases; error-vs-time table, CSV and PNG")
     sweep.add_argument("scene")
     sweep.add_argument("--vary", action="append", required=True, metavar="SECTION.KEY=V1,V2,...")
     sweep.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     sweep.add_argument("--out", help="output directory for the sweep")
+    sweep.add_argument("--max-memory", type=float, metavar="GB", help=MAX_MEMORY_HELP)
     sub.add_parser("scenes", help="list the built-in scenes")
     sub.add_parser("info", help="versions, MPI and PETSc configuration")
     return parser

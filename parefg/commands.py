@@ -20,6 +20,7 @@ def run(comm, args) -> int:
         fail_at_step=args.fail_at_step,
         checkpoint_every=args.checkpoint_every,
         restart=args.restart,
+        max_memory=args.max_memory,
     )
     return 0
 
@@ -27,7 +28,7 @@ def run(comm, args) -> int:
 def sweep(comm, args) -> int:
     from parefg.sweep import run_sweep
 
-    run_sweep(comm, args.scene, args.vary, args.set, args.out)
+    run_sweep(comm, args.scene, args.vary, args.set, args.out, args.max_memory)
     return 0
 
 

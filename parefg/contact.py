@@ -22,16 +22,23 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.assembly import owned_rows, petsc_matrix
+from parefg.guards import DataGuard
 
 OPEN, STICK, SLIP = 0, 1, 2
 
 
 class ContactLaw:
-    """Contact and friction state of this rank's Gamma_C points.  Construction is collective."""
+    """Contact and friction state of this rank's Gamma_C points.  Construction is collective.
 
-    def __init__(self, comm, disc, scene):
+    The gap and the friction bound are evaluated through ``guard`` (a
+    :class:`~parefg.guards.DataGuard`, by default one of its own): whoever drives the law
+    calls ``guard.check()`` before the values reach a solve.
+    """
+
+    def __init__(self, comm, disc, scene, guard: DataGuard | None = None):
         points = disc.contact
         self.comm = comm
+        self.guard = DataGuard(comm, scene) if guard is None else guard
         self.weights = points.weights  # (n_c,)
         self.points = points.points  # (n_c, 2)
         normals = points.normals  # (n_c, 2)
@@ -43,7 +50,7 @@ class ContactLaw:
         self._bcs = {disc.cloud.part_names.index(bc.name): bc for bc in bcs if bc.kind == "contact"}
         self.part = points.part
         self.has_friction = not all(bc.friction_is_zero for bc in self._bcs.values())
-        self.gap = self._per_part(lambda bc, x, y, n: bc.gap(x, y))
+        self.gap = self._per_part("gap", lambda bc, x, y, n: bc.gap(x, y), 0.0)
         self.bound = np.zeros(len(self.weights))  # g_n at the points, set by set_time
         self.slip = np.zeros(len(self.weights))  # xi, accumulated slip
         self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
@@ -71,21 +78,32 @@ class ContactLaw:
             comm, local, points.values.getLocalSize()[1], points.values.getSize()[1]
         )
 
-    def _per_part(self, evaluate) -> np.ndarray:
-        """Evaluate a per-boundary-condition function at the points of each contact part."""
+    def _per_part(self, key: str, evaluate, t: float, nonnegative=False) -> np.ndarray:
+        """Evaluate a datum (boundary.NAME.key) of each contact part at its points.
+
+        Not collective: bad values are recorded by the guard (see DataGuard.evaluate).
+        """
         out = np.zeros(len(self.weights))
         for part_id, bc in self._bcs.items():
             on = self.part == part_id
-            x, y = self.points[on, 0], self.points[on, 1]
-            out[on] = evaluate(bc, x, y, self.normals[on])
+            points = self.points[on]
+            x, y = points[:, 0], points[:, 1]
+            key_path = ("boundary", bc.name, key)
+            normals = self.normals[on]
+            out[on] = self.guard.evaluate(
+                key_path, evaluate, points, t, bc, x, y, normals, nonnegative=nonnegative
+            )
         return out
 
     def set_time(self, t: float) -> None:
-        """Friction bound g(x, t) at the points."""
+        """Friction bound g(x, t) >= 0 at the points (bad values go to the guard)."""
         if self.has_friction:
-            self.bound = self._per_part(lambda bc, x, y, n: bc.friction(x, y, t, n[:, 0], n[:, 1]))
-            if np.any(self.bound < 0):
-                raise ValueError("friction bound g is negative at some Gamma_C point")
+            self.bound = self._per_part(
+                "friction",
+                lambda bc, x, y, n: bc.friction(x, y, t, n[:, 0], n[:, 1]),
+                t,
+                nonnegative=True,
+            )
 
     def kinematics(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
         """(u_nu, u_tau) at the points.  Collective."""
@@ -138,15 +156,24 @@ class ContactLaw:
         )
         self.operator.multTransposeAdd(point_forces, residual, residual)
 
+    def active_weights(self, un, ut) -> tuple[np.ndarray, np.ndarray]:
+        """Jacobian weights of the active set: w alpha_C on closed, w alpha_T on sticking points.
+
+        Returns two arrays (n_c,); the tangential one is zero without friction.
+        """
+        closed = (un > self.gap) * self.weights * self.alpha_c
+        if not self.has_friction:
+            return closed, np.zeros_like(closed)
+        return closed, (~self._sliding(ut)) * self.weights * self.alpha_t
+
     def jacobian_rows(self, un, ut) -> sp.csr_matrix:
         """Owned rows of alpha_C B_nu^T W_closed B_nu + alpha_T B_tau^T W_stick B_tau.
 
         Collective.
         """
-        closed = (un > self.gap) * self.weights * self.alpha_c
+        closed, stick = self.active_weights(un, ut)
         local = self.normal_op.T @ sp.diags(closed) @ self.normal_op
         if self.has_friction:
-            stick = (~self._sliding(ut)) * self.weights * self.alpha_t
             local = local + self.tangent_op.T @ sp.diags(stick) @ self.tangent_op
         return owned_rows(self.comm, local.tocsr(), self.dof_ranges)
 

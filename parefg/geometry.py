@@ -14,6 +14,7 @@ each boundary part; meshing and extraction are shared.
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import math
 import os
@@ -80,7 +81,13 @@ class NodeCloud:
 
 
 def build_node_cloud(
-    comm, domain: dict, h: float, cells: str = "quad", jitter: float = 0.0, seed: int = 0
+    comm,
+    domain: dict,
+    h: float,
+    cells: str = "quad",
+    jitter: float = 0.0,
+    seed: int = 0,
+    budget=None,
 ) -> NodeCloud:
     """Mesh a domain with gmsh on rank 0 and broadcast the node cloud.
 
@@ -102,6 +109,8 @@ def build_node_cloud(
     jitter, seed : float, int
         The scene's ``discretization.jitter`` and ``.seed``: interior nodes move
         by at most jitter c_I (:func:`parefg.jitter.jitter_cloud`); 0 keeps the mesh nodes.
+    budget : parefg.budget.Budget, optional
+        Refuses a .geo domain too large for the machine before gmsh meshes it.
     """
     # Imported here: parefg.jitter builds on this module's NodeCloud and node_spacing.
     from parefg.jitter import jitter_cloud
@@ -109,7 +118,7 @@ def build_node_cloud(
     cloud, failure = None, None
     if comm.rank == 0:
         try:
-            cloud = jitter_cloud(mesh_domain(domain, h, cells), jitter, seed)
+            cloud = jitter_cloud(mesh_domain(domain, h, cells, budget), jitter, seed)
         except InputError as exc:
             failure = ("input", str(exc))
         except Exception as exc:  # a defect: still end every rank, not only rank 0
@@ -126,8 +135,45 @@ def build_node_cloud(
     return comm.bcast(cloud, root=0)
 
 
-def mesh_domain(domain: dict, h: float, cells: str = "quad") -> NodeCloud:
-    """Build, mesh and extract one domain in this process (not collective)."""
+@contextlib.contextmanager
+def _stdin_closed():
+    """File descriptor 0 reads /dev/null inside the block (gmsh's C stdio reads fd 0).
+
+    Defence in depth: whatever gmsh (or a .geo resetting General.NoPopup) asks, it reads
+    end-of-file and takes its default instead of waiting on a pipe or a terminal.
+    """
+    saved = os.dup(0) if _fd_open(0) else None
+    null = os.open(os.devnull, os.O_RDONLY)  # is 0 itself when fd 0 was closed
+    try:
+        if null != 0:
+            os.dup2(null, 0)
+        yield
+    finally:
+        if saved is None:  # fd 0 was closed: close it again
+            os.close(0)
+        else:
+            os.dup2(saved, 0)
+            os.close(saved)
+        if null != 0:
+            os.close(null)
+
+
+def _fd_open(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True
+
+
+@_stdin_closed()
+def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> NodeCloud:
+    """Build, mesh and extract one domain in this process (not collective).
+
+    gmsh never reads stdin here (:func:`_gmsh_initialize`, :func:`_stdin_closed`).  With a
+    ``budget`` (:class:`parefg.budget.Budget`), a .geo domain whose surfaces' bounding boxes
+    (an upper bound of its area) need more than the budget is refused before meshing.
+    """
     shape = domain.get("shape")
     if shape not in DOMAIN_BUILDERS:
         raise InputError(
@@ -145,6 +191,8 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad") -> NodeCloud:
         _set_mesh_options(gmsh, h, cells, recombine=False)
         built = DOMAIN_BUILDERS[shape](gmsh, domain, h, cells)
         _set_mesh_options(gmsh, h, cells, recombine=cells == "quad" and built.lattice is None)
+        if budget is not None and shape == "geo":
+            budget.check_extent(*_surfaces_extent(gmsh, built.surfaces))
         gmsh.model.mesh.generate(2)
         cloud = _extract_cloud(gmsh, built, cells)
     except InputError:
@@ -159,13 +207,36 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad") -> NodeCloud:
 
 
 def _gmsh_initialize(gmsh) -> None:
-    """Start gmsh quietly, without its own interrupt handling where supported."""
+    """Start gmsh quietly and non-interactively, ignoring the user's gmsh config files.
+
+    gmsh asks questions on stdin (Msg::GetAnswer, GetValue, GetString: "Your choice of
+    mesh element sizes will likely produce a very large mesh. Do you really want to
+    continue?") unless General.NoPopup is set; General.ExpertMode skips that size question
+    altogether (parefg's own budget has judged the size).  Without its own interrupt
+    handling where supported.
+    """
+    options = {"readConfigFiles": False}
     if "interruptible" in inspect.signature(gmsh.initialize).parameters:
-        gmsh.initialize(interruptible=False)
-    else:
-        gmsh.initialize()
+        options["interruptible"] = False
+    gmsh.initialize(**options)
     gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.option.setNumber("General.NoPopup", 1)
+    gmsh.option.setNumber("General.ExpertMode", 1)
     gmsh.model.add("parefg")
+
+
+def _surfaces_extent(gmsh, surfaces: list[int]) -> tuple[float, float]:
+    """(area, perimeter) bounds of the surfaces from their bounding boxes (before meshing).
+
+    The sum of the boxes' areas bounds the meshed area from above (each surface lies in
+    its box and is meshed on its own); the boxes' perimeters estimate the boundary.
+    """
+    area = perimeter = 0.0
+    for surface in surfaces:
+        x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(2, surface)
+        area += (x1 - x0) * (y1 - y0)
+        perimeter += 2 * ((x1 - x0) + (y1 - y0))
+    return area, perimeter
 
 
 def _set_mesh_options(gmsh, h: float, cells: str, recombine: bool) -> None:

@@ -35,6 +35,11 @@ from parefg.weights import get_weight
 
 # Moment matrices less well conditioned than this are rejected.
 MAX_CONDITION = 1e12
+# Rejected matrices whose condition estimate exceeds this are reported as singular.  Both
+# backends share it, so the verdict does not depend on round-off: an exactly singular A
+# comes out of either factorization (LU, Cholesky, any SIMD path) with an estimate >= 4e16
+# or a breakdown (inf), while an estimate below 1e14 is accurate to kappa eps < 2 %.
+SINGULAR_CONDITION = 1e14
 # Points per batch of dense linear algebra: bounds memory at about 100 MB for m = 3.
 CHUNK_POINTS = 20000
 # Backends by name; the default is the first one usable for the chosen weight.
@@ -277,11 +282,12 @@ class MLS:
             return
         i = int(np.argmax(bad))
         x, y = points[i]
-        if counts[i] < self.n_basis or not np.isfinite(condition[i]):
+        if counts[i] < self.n_basis or not condition[i] <= SINGULAR_CONDITION:
             problem = "singular"
         else:
+            # One significant digit: the estimate is only accurate to kappa eps.
             problem = (
-                f"badly conditioned (condition number {condition[i]:.1e} > {MAX_CONDITION:.0e})"
+                f"badly conditioned (condition number {condition[i]:.0e} > {MAX_CONDITION:.0e})"
             )
         now = "" if self.support_factor is None else f" (now {self.support_factor:g})"
         raise MLSError(
@@ -297,14 +303,15 @@ class MLS:
         The Frobenius estimate bounds the 2-norm condition number from above, by at
         most a factor n_basis, at the price of the inverse that is needed anyway.
         When LU breaks down on an (exactly) singular matrix, the chunk falls back to
-        eigenvalues: matrices beyond ``MAX_CONDITION`` get an infinite condition
-        (they are rejected anyway) and only the others are inverted.
+        eigenvalues: matrices beyond ``SINGULAR_CONDITION`` get an infinite condition
+        (singular whatever the estimate) and the others are inverted, so that a badly
+        conditioned point is classified as it would be in a chunk without breakdown.
         """
         try:
             inverse = np.linalg.inv(moment)
         except np.linalg.LinAlgError:
             eigenvalues = np.linalg.eigvalsh(moment)  # (n, n_basis), ascending
-            invertible = eigenvalues[:, 0] * MAX_CONDITION > eigenvalues[:, -1]
+            invertible = eigenvalues[:, 0] * SINGULAR_CONDITION > eigenvalues[:, -1]
             inverse = np.zeros_like(moment)
             inverse[invertible] = np.linalg.inv(moment[invertible])
             condition = MLS._frobenius_condition(moment, inverse)

@@ -188,6 +188,8 @@ def _cholesky(moment, size, factor):
         pivot = moment[j, j]
         for k in range(j):
             pivot -= factor[j, k] * factor[j, k]
+        # An exact test, but harmless: a matrix that passes it with a round-off pivot gets
+        # an estimate >= 1/eps, which parefg.mls classifies as singular like a breakdown.
         if not pivot > 0.0:
             return False
         factor[j, j] = np.sqrt(pivot)

@@ -23,6 +23,7 @@ from parefg.assembly import (
     petsc_matrix,
     value_operator,
 )
+from parefg.budget import Budget, check_problem_size
 from parefg.geometry import NodeCloud, build_node_cloud
 from parefg.mls import MLS, MLSError, ShapeValues
 from parefg.partition import Partition, partition_cloud
@@ -129,8 +130,8 @@ def _mass_blocks(gram: np.ndarray) -> np.ndarray:
 class _Builder:
     """Collective construction of a Discretization from a scene."""
 
-    def __init__(self, comm, scene):
-        self.comm, self.scene = comm, scene
+    def __init__(self, comm, scene, budget):
+        self.comm, self.scene, self.budget = comm, scene, budget
         self.timings = {"mesh": 0.0, "neighbours": 0.0, "mls": 0.0, "assembly": 0.0}
         self.n_contact = 0
 
@@ -138,8 +139,9 @@ class _Builder:
         comm, scene = self.comm, self.scene
         with phase(self.timings, "mesh"):
             cloud = build_node_cloud(
-                comm, scene.domain, scene.h, scene.cells, scene.jitter, scene.seed
+                comm, scene.domain, scene.h, scene.cells, scene.jitter, scene.seed, self.budget
             )
+            self.budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
             cloud, partition = partition_cloud(cloud, comm.size)
             self.cloud, self.partition = cloud, partition
             self.n_nodes = len(cloud.coords)
@@ -321,6 +323,13 @@ class _Builder:
         return nodes
 
 
-def build_discretization(comm, scene) -> Discretization:
-    """Mesh, partition, MLS and assemble every constant operator of ``scene``.  Collective."""
-    return _Builder(comm, scene).build()
+def build_discretization(comm, scene, budget: Budget | None = None) -> Discretization:
+    """Mesh, partition, MLS and assemble every constant operator of ``scene``.  Collective.
+
+    ``budget`` (default: the machine's, :func:`parefg.budget.check_problem_size`) refuses
+    the scene with InputError on every rank when its run cannot fit in memory: from its
+    parameters, for a .geo before meshing, and from the node cloud before MLS.
+    """
+    if budget is None:
+        budget = check_problem_size(comm, scene)
+    return _Builder(comm, scene, budget).build()

@@ -13,6 +13,7 @@ import numpy as np
 from mpi4py import MPI
 
 from parefg import __version__
+from parefg.budget import check_problem_size
 from parefg.checkpoint import read_checkpoint, write_checkpoint
 from parefg.errors import InputError, SolverError
 from parefg.operators import build_discretization
@@ -210,35 +211,43 @@ def run_scene(
     fail_at_step: int | None = None,
     checkpoint_every: int = 0,
     restart: str | None = None,
+    max_memory: float | None = None,
 ) -> dict:
     """Run ``scene`` on ``comm``; write result.h5/.xdmf and summary.json.  Collective.
 
     ``checkpoint_every`` > 0 writes DIR/checkpoint.h5 every that many steps; ``restart``
     continues from such a file (its step + 1 onwards) instead of the initial state.
+    ``max_memory`` (GB per machine; default: its available memory) bounds the estimated
+    size of the run: a scene beyond it is refused before anything is created.
     The scene's [solver] options apply for this run only, under the command line's; at
     the end, rank 0 warns on stderr about PETSc options no object used.
 
-    Everything that can be checked -- the output path, the discretization, the solver
-    options, the checkpoint -- is checked before the output directory is created, so bad
-    input writes nothing.
+    Everything that can be checked -- the problem size, the output path, the
+    discretization, the solver options, the checkpoint -- is checked before the output
+    directory is created, so bad input writes nothing.
 
     Returns the summary dict (the contents of summary.json).
     """
     with scene_options(scene.solver_options) as from_scene:
-        summary = _run_scene(comm, scene, out, quiet, fail_at_step, checkpoint_every, restart)
+        summary = _run_scene(
+            comm, scene, out, quiet, fail_at_step, checkpoint_every, restart, max_memory
+        )
         warning = unused_options_warning(comm, from_scene)
     if warning and comm.rank == 0:
         print(warning, file=sys.stderr, flush=True)
     return summary
 
 
-def _run_scene(comm, scene, out, quiet, fail_at_step, checkpoint_every, restart) -> dict:
+def _run_scene(
+    comm, scene, out, quiet, fail_at_step, checkpoint_every, restart, max_memory
+) -> dict:
     start = time.perf_counter()
     start_logging()
+    budget = check_problem_size(comm, scene, max_memory)
     out_dir = plan_output_dir(comm, scene.name, out)
     say = (lambda *a: print(*a, flush=True)) if comm.rank == 0 and not quiet else (lambda *a: None)
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
-    disc = build_discretization(comm, scene)
+    disc = build_discretization(comm, scene, budget)
     with petsc_configuration(comm, "the solvers", scene.solver_options):
         sim = Simulation(comm, scene, disc)
         state, first = sim.start(), 1  # sets up the mass solve (-mass_ options) too
@@ -271,6 +280,7 @@ def _run_scene(comm, scene, out, quiet, fail_at_step, checkpoint_every, restart)
                 writer.append_history(row)
                 if _is_output_step(n, scene):
                     node_fields, contact_fields = _output_fields(sim, state)
+                    sim.check_fields(n, {**node_fields, **contact_fields})
                     writer.write_step(n, row["time"], node_fields, contact_fields)
                 if checkpoint_every > 0 and n % checkpoint_every == 0:
                     write_checkpoint(comm, out_dir / "checkpoint.h5", sim, state, n)

@@ -8,24 +8,41 @@ g = 0 no tangential terms enter; errors are computed only with an exact solution
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.assembly import petsc_matrix, with_pattern
 from parefg.contact import ContactLaw
 from parefg.errors import SolverError
+from parefg.guards import DataGuard, RigidModes, all_finite, require_constraints
 from parefg.profiling import phase
 from parefg.solver import ContactStepSolver, LinearStepSolver, configure_linear_solver
 from parefg.timestepping import State, make_scheme, relative_errors
+
+# Energies held by the state; with the external work they balance (see Simulation._record).
+STORED_ENERGIES = ("kinetic_energy", "elastic_energy", "penalty_energy", "dissipated_energy")
+# A dynamic run whose stored energy exceeds this multiple of the energy it was given
+# (initial energy + the largest |external work| so far) has diverged: energy-stable
+# schemes stay within the time-discretization error of the balance (SPEC 4), an unstable
+# one grows geometrically and passes this bound long before it overflows.
+ENERGY_GROWTH = 1e6
 
 
 class Simulation:
     """The time loop of one scene on ``comm``.  Construction and every method are collective."""
 
     def __init__(self, comm, scene, disc):
+        require_constraints(scene)
         self.comm, self.scene, self.disc = comm, scene, disc
         self.scheme = make_scheme(scene)
-        self.law = ContactLaw(comm, disc, scene) if disc.contact is not None else None
+        self.guard = DataGuard(comm, scene)
+        self.law = None
+        if disc.contact is not None:
+            self.law = ContactLaw(comm, disc, scene, self.guard)
+            self.guard.check()  # the gap
         self.dirichlet_names = [n for n, bc in scene.boundaries.items() if bc.kind == "dirichlet"]
         self.neumann_names = [n for n, bc in scene.boundaries.items() if bc.kind == "neumann"]
         self.timings: dict[str, float] = {"assembly": 0.0, "solve": 0.0, "output": 0.0}
@@ -35,7 +52,9 @@ class Simulation:
                 self.solver = LinearStepSolver(comm, self.a_const)
             else:
                 self.solver = ContactStepSolver(comm, self.a_const, self.law)
+            self.rigid_modes = self._rigid_mode_check()
         self.history: list[dict[str, float]] = []
+        self._energy_budget = [0.0, 0.0]  # initial stored energy, largest |external work|
         self.newton_iterations = 0
         self.linear_iterations = 0
 
@@ -66,38 +85,68 @@ class Simulation:
         coordinates.setArray(self.disc.cloud.coords[start:stop].ravel())
         return PETSc.NullSpace().createRigidBody(coordinates)
 
+    def _rigid_mode_check(self) -> RigidModes | None:
+        """Rigid-motion stiffness of a static scene held by contact alone; else None.
+
+        Dynamic scenes have the mass term, and a Dirichlet part holds every rigid motion
+        (alpha_D > 0 on a curve): their Jacobian is never singular.  A static scene with
+        neither Dirichlet nor contact part was refused by require_constraints.
+        """
+        if self.scheme.dynamic or self.dirichlet_names or self.law is None:
+            return None
+        return RigidModes(self.comm, self.disc, self.a_const, self.law)
+
     # -- loads ---------------------------------------------------------------------
     def external_forces(self, t: float) -> PETSc.Vec:
-        """F(t): body force and Neumann tractions integrated against the shape functions."""
+        """F(t): body force and Neumann tractions integrated against the shape functions.
+
+        Collective; bad values go to ``self.guard`` (checked before the next solve).
+        """
         disc, scene = self.disc, self.scene
         total = disc.create_vec()
         part = disc.create_vec()
-        x, y = disc.domain.points.T
-        disc.domain.integrate(scene.body_force(x, y, t).T, part)
+        points = disc.domain.points
+        x, y = points.T
+        force = self.guard.evaluate(("loads", "f"), scene.body_force, points, t, x, y, t)
+        disc.domain.integrate(force.T, part)
         total.axpy(1.0, part)
         for name in self.neumann_names:
             points = disc.boundary[name]
             x, y = points.points.T
             nx, ny = points.normals.T
-            points.integrate(scene.boundaries[name].traction(x, y, t, nx, ny).T, part)
+            traction = self.guard.evaluate(
+                ("boundary", name, "traction"),
+                scene.boundaries[name].traction,
+                points.points,
+                t,
+                *(x, y, t, nx, ny),
+            )
+            points.integrate(traction.T, part)
             total.axpy(1.0, part)
         return total
+
+    def _dirichlet_value(self, name: str, t: float) -> np.ndarray:
+        """ubar(t) at the points of Dirichlet part ``name``, (n, 2); checked by the guard."""
+        points = self.disc.boundary[name].points
+        x, y = points.T
+        field = self.scene.boundaries[name].value
+        return self.guard.evaluate(("boundary", name, "value"), field, points, t, x, y, t).T
 
     def _add_dirichlet_data(self, t: float, out: PETSc.Vec) -> None:
         """out += alpha_D g_D(t), g_D = int_{Gamma_D} ubar(t) . phi_I."""
         part = self.disc.create_vec()
         for name in self.dirichlet_names:
-            points = self.disc.boundary[name]
-            x, y = points.points.T
-            points.integrate(self.scene.boundaries[name].value(x, y, t).T, part)
+            self.disc.boundary[name].integrate(self._dirichlet_value(name, t), part)
             out.axpy(self.scene.alpha_dirichlet, part)
 
     # -- initial state ---------------------------------------------------------------
-    def _project(self, field) -> PETSc.Vec:
-        """L2 projection M d = int rho f . phi of an initial field (zero stays zero)."""
+    def _project(self, key: str, field) -> PETSc.Vec:
+        """L2 projection M d = int rho f . phi of initial field ``key`` (zero stays zero)."""
         disc = self.disc
-        x, y = disc.domain.points.T
-        values = field(x, y).T * self.scene.rho
+        points = disc.domain.points
+        x, y = points.T
+        values = self.guard.evaluate(("initial", key), field, points, 0.0, x, y).T * self.scene.rho
+        self.guard.check()
         result = disc.create_vec()
         if self.comm.allreduce(bool(np.any(values != 0.0))):
             rhs = disc.create_vec()
@@ -126,8 +175,8 @@ class Simulation:
 
         ``forces`` is F_0 = external_forces(0).
         """
-        u = self._project(self.scene.initial_u)
-        v = self._project(self.scene.initial_v)
+        u = self._project("u", self.scene.initial_u)
+        v = self._project("v", self.scene.initial_v)
         a = self.disc.create_vec()
         if self.scheme.dynamic:
             rhs = forces.copy()
@@ -144,6 +193,7 @@ class Simulation:
                 contact_forces = self.disc.create_vec()
                 self.law.add_residual(contact_forces, un, ut)
                 rhs.axpy(-1.0, contact_forces)
+            self.guard.check()
             self._mass_solve(rhs, a)
         elif self.law is not None:
             self.law.slip = self.law.kinematics(u)[1]
@@ -155,22 +205,25 @@ class Simulation:
         state = self.initial_state(self._last_forces)
         self._dirichlet_previous = {}
         dirichlet_energy, _ = self._dirichlet_terms(state.u, 0.0)
+        self.guard.check()
         contact_energy = 0.0
         if self.law is not None:
             contact_energy = self.law.normal_energy(self.law.kinematics(state.u)[0])
-        self.history = [
-            {
-                "time": 0.0,
-                "newton_iterations": 0,
-                "linear_iterations": 0,
-                "active_contact_points": 0,
-                "kinetic_energy": 0.5 * _quadratic(self.disc.mass, state.v),
-                "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, state.u),
-                "penalty_energy": dirichlet_energy + contact_energy,
-                "dissipated_energy": 0.0,
-                "external_work": 0.0,
-            }
-        ]
+        self._check_state(state, 0)
+        row = {
+            "time": 0.0,
+            "newton_iterations": 0,
+            "linear_iterations": 0,
+            "active_contact_points": 0,
+            "kinetic_energy": 0.5 * _quadratic(self.disc.mass, state.v),
+            "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, state.u),
+            "penalty_energy": dirichlet_energy + contact_energy,
+            "dissipated_energy": 0.0,
+            "external_work": 0.0,
+        }
+        self._energy_budget = [_stored(row), 0.0]  # initial stored energy, max |work|
+        self._check_row(row, 0)
+        self.history = [row]
         return state
 
     def resume(self, state: State, step: int, last_row: dict) -> State:
@@ -179,6 +232,8 @@ class Simulation:
         self._last_forces = self.external_forces(t)
         self._dirichlet_previous = {}
         self._dirichlet_terms(state.u, t)
+        self.guard.check()  # also the friction bound that read_checkpoint set
+        self._energy_budget = [_stored(last_row), abs(last_row["external_work"])]
         self.history = [dict(last_row)]
         return state
 
@@ -197,19 +252,93 @@ class Simulation:
         u = ut.copy()  # initial guess: the predictor
         if self.law is not None:
             self.law.set_time(t)
+        self.guard.check()  # the step's data, before they reach the solve
         with phase(self.timings, "solve"):
-            newton, linear = self.solver.solve(b, u, t)
+            try:
+                newton, linear = self.solver.solve(b, u, t)
+            except SolverError:
+                self._check_rigid_modes(u, t)  # the better message, if that is the cause
+                raise
+        self._check_rigid_modes(u, t)
         self.newton_iterations += newton
         self.linear_iterations += linear
         new = self.scheme.update(state, u, ut, vt)
-        self._check_finite(new.u, t)
-        self._record(state, new, t, forces, newton, linear)
+        self._check_state(new, n)
+        # A finite but huge state overflows the energies: _record's check reports it.
+        with np.errstate(over="ignore", invalid="ignore"):
+            self._record(state, new, t, forces, newton, linear)
         return new
 
-    def _check_finite(self, u: PETSc.Vec, t: float) -> None:
-        bad = not np.all(np.isfinite(u.getArray(readonly=True)))
-        if self.comm.allreduce(bad):
-            raise SolverError(f"non-finite displacement at t = {t:.6g}: the step diverged")
+    # -- guards ------------------------------------------------------------------------
+    def _check_rigid_modes(self, u: PETSc.Vec, t: float) -> None:
+        """SolverError if the Jacobian at u leaves a rigid motion free.  Collective.
+
+        Only static scenes held by contact alone are checked (see _rigid_mode_check).
+        """
+        if self.rigid_modes is None:
+            return
+        self.rigid_modes.check(t, *self.law.active_weights(*self.law.kinematics(u)))
+
+    def _check_state(self, state: State, n: int) -> None:
+        """SolverError naming the first non-finite field of u, v, a at step n.  Collective.
+
+        One allreduce (of a bit mask).
+        """
+        fields = {"displacement": state.u, "velocity": state.v, "acceleration": state.a}
+        self._raise_non_finite(
+            "non-finite ", {name: vec.getArray(readonly=True) for name, vec in fields.items()}, n
+        )
+
+    def _check_row(self, row: dict, n: int) -> None:
+        """SolverError naming the first non-finite energy of a history row.  Not collective.
+
+        The energies are sums over all ranks, the same on each.  They are quadratic in the
+        state, so they also catch a finite state beyond about 1e154 (times the material
+        scale), where further arithmetic would overflow.
+        """
+        for name, value in row.items():
+            if not math.isfinite(value):
+                self._diverged(f"{name.replace('_', ' ')} is {value}", n)
+        if not self.scheme.dynamic:
+            return  # no inertia: nothing can grow from step to step
+        initial, work = self._energy_budget
+        work = self._energy_budget[1] = max(work, abs(row["external_work"]))
+        stored = _stored(row)
+        if stored > ENERGY_GROWTH * (initial + work):
+            self._diverged(
+                f"the stored energy {stored:.3g} exceeds {ENERGY_GROWTH:.0e} times the energy "
+                f"supplied ({initial + work:.3g})",
+                n,
+            )
+
+    def check_fields(self, n: int, fields: dict[str, np.ndarray]) -> None:
+        """SolverError naming the first non-finite output field at step n.  Collective.
+
+        ``fields`` maps names to this rank's values (the same names on every rank).
+        """
+        self._raise_non_finite("non-finite output field ", fields, n)
+
+    def _raise_non_finite(self, what: str, arrays: dict[str, np.ndarray], n: int) -> None:
+        """SolverError naming the first of ``arrays`` that is not finite on some rank.
+
+        Collective: one allreduce of a bit mask (bit i: array i has a non-finite entry).
+        """
+        local = 0
+        with np.errstate(over="ignore"):  # huge finite values may overflow the sum
+            for bit, values in enumerate(arrays.values()):
+                if not all_finite(np.asarray(values, dtype=float)):
+                    local |= 1 << bit
+        bad = self.comm.allreduce(local, op=MPI.BOR)
+        for bit, name in enumerate(arrays):
+            if bad >> bit & 1:
+                self._diverged(f"{what}{name}", n)
+
+    def _diverged(self, what: str, n: int) -> None:
+        t = n * self.scheme.k
+        raise SolverError(
+            f"{what} at step {n}, t = {t:.6g}: the time integration diverged "
+            "(check the loads, time.dt, the Newmark parameters and the penalty factors)"
+        )
 
     def _record(self, old: State, new: State, t, forces, newton, linear) -> None:
         """Per-step table row: iterations, active points and energies.
@@ -228,19 +357,19 @@ class Simulation:
         dirichlet_energy, anchor_work = self._dirichlet_terms(new.u, t)
         work = previous.get("external_work", 0.0) + anchor_work
         work += self._load_work(old.u, new.u, forces)
-        self.history.append(
-            {
-                "time": t,
-                "newton_iterations": newton,
-                "linear_iterations": linear,
-                "active_contact_points": active,
-                "kinetic_energy": 0.5 * _quadratic(self.disc.mass, new.v),
-                "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, new.u),
-                "penalty_energy": dirichlet_energy + contact_energy,
-                "dissipated_energy": dissipated,
-                "external_work": work,
-            }
-        )
+        row = {
+            "time": t,
+            "newton_iterations": newton,
+            "linear_iterations": linear,
+            "active_contact_points": active,
+            "kinetic_energy": 0.5 * _quadratic(self.disc.mass, new.v),
+            "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, new.u),
+            "penalty_energy": dirichlet_energy + contact_energy,
+            "dissipated_energy": dissipated,
+            "external_work": work,
+        }
+        self._check_row(row, int(round(t / self.scheme.k)))
+        self.history.append(row)
 
     def _load_work(self, u_old, u_new, forces) -> float:
         """Trapezoidal work of F over the step: (F_{n-1} + F_n)/2 . (u_n - u_{n-1})."""
@@ -261,13 +390,12 @@ class Simulation:
         current = {}
         for name in self.dirichlet_names:
             points = self.disc.boundary[name]
-            x, y = points.points.T
-            ubar = self.scene.boundaries[name].value(x, y, t).T
+            ubar = self._dirichlet_value(name, t)
             diff = points.evaluate(u) - ubar
             energy += np.dot(points.weights, np.sum(diff**2, axis=1))
-            old_ubar, old_diff = previous.get(
-                name, (self.scene.boundaries[name].value(x, y, t - self.scheme.k).T, diff)
-            )
+            # Without a previous level (start, resume) the work is not used: no ubar(t - k),
+            # which may lie outside the data's domain (t < 0).
+            old_ubar, old_diff = previous.get(name, (ubar, diff))
             mean_force = 0.5 * (diff + old_diff)
             work -= np.dot(points.weights, np.sum(mean_force * (ubar - old_ubar), axis=1))
             current[name] = (ubar, diff)
@@ -279,6 +407,11 @@ class Simulation:
         if self.scene.exact is None:
             return None
         return relative_errors(self.comm, self.disc, self.scene.exact, u, t)
+
+
+def _stored(row: dict) -> float:
+    """Kinetic + elastic + penalty-stored + dissipated energy of a history row."""
+    return sum(row[name] for name in STORED_ENERGIES)
 
 
 def _quadratic(matrix: PETSc.Mat, x: PETSc.Vec) -> float:

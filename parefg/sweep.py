@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from parefg.budget import check_problem_size
 from parefg.errors import InputError
 from parefg.run import choose_output_dir, run_scene
 from parefg.scene import load_scene
@@ -33,16 +34,30 @@ def parse_axes(vary: list[str]) -> list[tuple[str, list[str]]]:
     return axes
 
 
-def run_sweep(comm, scene_source: str, vary: list[str], sets: list[str], out: str | None) -> list:
-    """Run every case of the grid; return the rows.  Collective."""
+def run_sweep(
+    comm,
+    scene_source: str,
+    vary: list[str],
+    sets: list[str],
+    out: str | None,
+    max_memory: float | None = None,
+) -> list:
+    """Run every case of the grid; return the rows.  Collective.
+
+    Every case is validated and its size checked against ``max_memory`` (GB per machine;
+    default: its available memory) before any case runs.
+    """
     axes = parse_axes(vary)
     cases = list(itertools.product(*[values for _, values in axes]))
     # validate every case before running any (bad input: exit 2, nothing run)
     scenes = [load_scene(scene_source, [*sets, *_overrides(axes, case)]) for case in cases]
+    for scene in scenes:
+        check_problem_size(comm, scene, max_memory)
     out_dir = choose_output_dir(comm, f"sweep-{scenes[0].name}", out)
     rows = []
     for i, (case, scene) in enumerate(zip(cases, scenes, strict=True)):
-        summary = run_scene(comm, scene, out=str(out_dir / f"case{i:03d}"), quiet=True)
+        case_dir = str(out_dir / f"case{i:03d}")
+        summary = run_scene(comm, scene, out=case_dir, quiet=True, max_memory=max_memory)
         row = _row(axes, case, scene, summary)
         rows.append(row)
         if comm.rank == 0:

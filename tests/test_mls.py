@@ -384,6 +384,33 @@ def test_both_backends_report_the_same_first_bad_point(monkeypatch):
     assert "(0.5, 3.25)" in messages[0] and messages[0] == messages[1]
 
 
+@pytest.mark.parametrize("estimate", [4e16, 3.5e17, np.inf, np.nan])
+def test_numerically_singular_estimates_are_reported_as_singular(estimate):
+    # An exactly singular A yields, depending on the SIMD path and the factorization, a
+    # breakdown (inf) or a round-off estimate >= 1/eps: one verdict, one message for all.
+    mls = MLS(grid_nodes(), 0.3, 1)
+    with pytest.raises(MLSError) as raised:
+        mls._check_conditioning(np.array([[0.5, 0.5]]), np.ones((1, 9), bool), np.array([estimate]))
+    assert str(raised.value).startswith("MLS moment matrix singular at point (0.5, 0.5): 9 ")
+
+
+def test_badly_conditioned_message_quotes_the_estimate_to_its_accuracy():
+    mls = MLS(grid_nodes(), 0.3, 1)
+    with pytest.raises(MLSError, match=re.escape("badly conditioned (condition number 3e+13 > ")):
+        mls._check_conditioning(np.array([[0.5, 0.5]]), np.ones((1, 9), bool), np.array([3.1e13]))
+
+
+def test_lu_breakdown_in_a_chunk_does_not_change_the_other_points_estimates():
+    # One exactly singular matrix makes LU raise for the whole stack; the eigenvalue fallback
+    # must still give the badly conditioned (kappa = 1e13) neighbour its finite estimate.
+    moments = np.array([np.diag([1.0, 0.0]), np.diag([1.0, 1e-13]), np.eye(2)])
+    _, condition = MLS._invert(moments)
+    _, alone = MLS._invert(moments[1:])
+    assert condition[0] == np.inf
+    np.testing.assert_allclose(condition[1:], alone, rtol=1e-12)
+    assert 1e12 < condition[1] < 1e14
+
+
 def test_unknown_backend_is_an_input_error():
     with pytest.raises(InputError, match="backend"):
         MLS(grid_nodes(), 0.2, 1, backend="fortran")
