@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import resource
 import sys
 import time
@@ -19,6 +20,7 @@ from parefg.errors import InputError, Interrupted, SolverError
 from parefg.monitors import Progress, StopRequest
 from parefg.operators import build_discretization
 from parefg.output import ResultWriter
+from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
 from parefg.profiling import factorization_stats, phase, start_logging
 from parefg.simulation import Simulation
 
@@ -30,28 +32,117 @@ GARBAGE_EVERY = 1000
 
 
 def choose_output_dir(comm, scene_name: str, requested: str | None) -> Path:
-    """The run's output directory; never an existing non-empty one.  Collective.
+    """Check and create the run's output directory; never an existing non-empty one.
 
-    Without --out: runs/<scene>, or runs/<scene>-2, -3, ... if taken.
+    Without --out: runs/<scene>, or runs/<scene>-2, -3, ... if taken.  Collective.
+    """
+    path = plan_output_dir(comm, scene_name, requested)
+    create_output_dir(comm, path, requested)
+    return path
+
+
+def plan_output_dir(comm, scene_name: str, requested: str | None) -> Path:
+    """The run's output directory, checked but not created (nothing is written).  Collective.
+
+    Refuses (InputError on every rank) an existing non-empty directory, a path that is
+    not a directory, a dangling symbolic link, a name the file system cannot hold, and a
+    path under a file; what only mkdir can tell (/proc, a read-only file system) is
+    refused by :func:`create_output_dir`.
     """
     message, path = None, None
     if comm.rank == 0:
         if requested is not None:
             path = Path(requested)
-            if path.exists() and (not path.is_dir() or any(path.iterdir())):
-                message = f"output directory {path} exists and is not empty; choose another --out"
         else:
             base = Path("runs") / scene_name
             path, n = base, 1
-            while path.exists():
+            while path.exists() or path.is_symlink():
                 n += 1
                 path = base.with_name(f"{base.name}-{n}")
-        if message is None:
-            path.mkdir(parents=True, exist_ok=True)
+        message = _unusable_output(path, requested)
     message, path = comm.bcast((message, path), root=0)
     if message:
         raise InputError(message)
     return path
+
+
+def create_output_dir(comm, path: Path, requested: str | None) -> list[Path]:
+    """Create ``path`` and its missing parents; returns the directories created.  Collective.
+
+    On failure the directories this call created are removed again and InputError is
+    raised on every rank.
+    """
+    message, created = None, []
+    if comm.rank == 0:
+        missing = [p for p in (path, *path.parents) if not (p.exists() or p.is_symlink())]
+        try:
+            for directory in reversed(missing):
+                directory.mkdir()
+                created.append(directory)
+        except OSError as error:
+            remove_empty_dirs(created)
+            created = []
+            message = f"{_output_label(path, requested)}: cannot create it ({_os_reason(error)})"
+    message, created = comm.bcast((message, created), root=0)
+    if message:
+        raise InputError(message)
+    return created
+
+
+def remove_empty_dirs(created: list[Path]) -> None:
+    """Remove the directories a run created (innermost first) as long as they are empty."""
+    for directory in reversed(created):
+        try:
+            directory.rmdir()
+        except OSError:
+            return  # not empty (or gone): keep it and everything above it
+
+
+def _output_label(path: Path, requested: str | None) -> str:
+    text = str(path)
+    if len(text) > 80:
+        text = f"{text[:50]}...{text[-20:]} ({len(text)} characters)"
+    return f"--out {text}" if requested is not None else f"output directory {text}"
+
+
+def _os_reason(error: OSError) -> str:
+    return error.strerror or str(error)
+
+
+def _unusable_output(path: Path, requested: str | None) -> str | None:
+    """Why ``path`` cannot become the output directory (checked without writing), or None."""
+    label = _output_label(path, requested)
+    try:
+        if path.is_symlink() and not path.exists():
+            return f"{label}: is a dangling symbolic link; choose another --out"
+        if path.exists():
+            if not path.is_dir():
+                return f"{label}: exists and is not a directory; choose another --out"
+            if any(path.iterdir()):
+                return f"output directory {path} exists and is not empty; choose another --out"
+            return None
+        return _uncreatable(path, label)
+    except OSError as error:  # a name too long for the file system, a loop of links, ...
+        return f"{label}: cannot create it ({_os_reason(error)})"
+
+
+def _uncreatable(path: Path, label: str) -> str | None:
+    """For a path that does not exist: why mkdir would fail, as far as it is known now."""
+    ancestor = next(p for p in path.absolute().parents if p.exists())
+    if not ancestor.is_dir():
+        return f"{label}: cannot create it ({ancestor} is not a directory)"
+    name_max = os.pathconf(ancestor, "PC_NAME_MAX")
+    path_max = os.pathconf(ancestor, "PC_PATH_MAX")
+    longest = max(len(os.fsencode(part)) for part in path.parts)
+    if longest > name_max:
+        return f"{label}: cannot create it (a name of {longest} bytes; the limit is {name_max})"
+    if len(os.fsencode(path.absolute())) >= path_max:
+        return f"{label}: cannot create it (longer than the path limit of {path_max} bytes)"
+    if os.statvfs(ancestor).f_flag & os.ST_RDONLY:
+        return f"{label}: cannot create it ({ancestor} is on a read-only file system)"
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        return f"{label}: cannot create it ({ancestor} is not writable)"
+    return None
 
 
 def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
@@ -134,40 +225,55 @@ def run_scene(
     the step every rank has finished (that step is written too): summary.json says
     "interrupted" and Interrupted (exit 128 + signal) is raised.
 
+    The scene's [solver] options apply for this run only, under the command line's; at
+    the end, rank 0 warns on stderr about PETSc options no object used.
+
+    Everything that can be checked -- the problem size, the output path, the
+    discretization, the solver options, the checkpoint -- is checked before the output
+    directory is created, so bad input writes nothing.
+
     Returns the summary dict (the contents of summary.json).
     """
-    with StopRequest(comm) as stop:
-        options = dict(
-            fail_at_step=fail_at_step, checkpoint_every=checkpoint_every, max_memory=max_memory
-        )
-        return _run(comm, scene, out, quiet, stop, restart, observers, **options)
+    options = dict(fail_at_step=fail_at_step, checkpoint_every=checkpoint_every)
+    with StopRequest(comm) as stop, scene_options(scene.solver_options) as from_scene:
+        summary = _run(comm, scene, out, quiet, stop, restart, observers, max_memory, **options)
+        warning = unused_options_warning(comm, from_scene)
+    if warning and comm.rank == 0:
+        print(warning, file=sys.stderr, flush=True)
+    return summary
 
 
 def _run(
-    comm, scene, out, quiet, stop, restart, observers, fail_at_step, checkpoint_every, max_memory
-):
+    comm, scene, out, quiet, stop, restart, observers, max_memory, fail_at_step, checkpoint_every
+) -> dict:
     start = time.perf_counter()
     start_logging()
     budget = check_problem_size(comm, scene, max_memory)
-    out_dir = choose_output_dir(comm, scene.name, out)
+    out_dir = plan_output_dir(comm, scene.name, out)
     say = (lambda *a: print(*a, flush=True)) if comm.rank == 0 and not quiet else (lambda *a: None)
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
     disc = build_discretization(comm, scene, budget)
     stop.reclaim()  # meshing (gmsh) may have replaced the SIGINT handler
-    sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
+    with petsc_configuration(comm, "the solvers", scene.solver_options):
+        sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
+        state, first = sim.start(), 1  # sets up the mass solve (-mass_ options) too
     say(
         f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "
         f"degree {scene.degree}, {'contact' if sim.law else 'no contact'}"
     )
-    metadata = {"params": scene.params, "version": __version__, "mpi_ranks": comm.size}
-    with phase(sim.timings, "output"):
-        writer = _writer(comm, sim, out_dir, metadata)
-
-    state, first = sim.start(), 1
     if restart is not None:
         state, done, last_row = read_checkpoint(comm, Path(restart), sim)
         state, first = sim.resume(state, done, last_row), done + 1
-    else:
+    created = create_output_dir(comm, out_dir, out)
+    metadata = {"params": scene.params, "version": __version__, "mpi_ranks": comm.size}
+    try:
+        with phase(sim.timings, "output"):
+            writer = _writer(comm, sim, out_dir, metadata)
+    except BaseException:
+        if comm.rank == 0:
+            remove_empty_dirs(created)
+        raise
+    if restart is None:
         writer.append_history(sim.history[0])  # the t = 0 row
         if _is_output_step(0, scene):
             with phase(sim.timings, "output"):

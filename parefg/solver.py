@@ -34,12 +34,49 @@ from parefg.errors import SolverError
 Reason = PETSc.SNES.ConvergedReason
 
 
+FACTORIZATIONS = ("lu", "cholesky", "ilu", "icc")
+
+
 def configure_linear_solver(ksp: PETSc.KSP) -> None:
     """Default: direct Cholesky with MUMPS; any -ksp_/-pc_ option overrides it."""
     ksp.setType(PETSc.KSP.Type.PREONLY)
     pc = ksp.getPC()
     pc.setType(PETSc.PC.Type.CHOLESKY)
     pc.setFactorSolverType("mumps")
+
+
+def check_factorization(ksp: PETSc.KSP, matrix: PETSc.Mat) -> None:
+    """Fail now, not at the first solve, if the chosen factorization package does not exist.
+
+    PETSc looks the package (-pc_factor_mat_solver_type) up only when the preconditioner
+    is set up, at the first solve.  A 2-row-per-rank matrix of ``matrix``'s type factored
+    with the same preconditioner and package raises the same PETSc error right away, for
+    the cost of nothing.  Call after setFromOptions.  Collective.
+    """
+    pc = ksp.getPC()
+    if pc.getType() not in FACTORIZATIONS:
+        return
+    probe = PETSc.Mat().create(matrix.getComm())
+    probe.setSizes(((2, None), (2, None)), bsize=2)
+    probe.setType(matrix.getType())
+    probe.setPreallocationNNZ(1)
+    start, stop = probe.getOwnershipRange()
+    for row in range(start, stop):
+        probe.setValue(row, row, 1.0)
+    probe.assemble()
+    probe.setOption(PETSc.Mat.Option.SPD, True)
+    trial = PETSc.KSP().create(matrix.getComm())
+    trial.setOperators(probe)
+    trial.setType(PETSc.KSP.Type.PREONLY)
+    trial.getPC().setType(pc.getType())
+    package = pc.getFactorSolverType()
+    if package:
+        trial.getPC().setFactorSolverType(package)
+    try:
+        trial.setUp()
+    finally:
+        trial.destroy()
+        probe.destroy()
 
 
 class LinearStepSolver:
@@ -51,6 +88,7 @@ class LinearStepSolver:
         self.ksp.setOperators(a_const)
         configure_linear_solver(self.ksp)
         self.ksp.setFromOptions()
+        check_factorization(self.ksp, a_const)
         self.factorizations = 0
         self.jacobian_builds = 0
 
@@ -92,15 +130,22 @@ class ContactStepSolver:
         snes.setType(PETSc.SNES.Type.NEWTONLS)
         snes.setFunction(self._residual, self.a_const.createVecRight())
         snes.setJacobian(self._jacobian_callback, self.jacobian)
-        # petsc4py 3.18 has no SNES.getLineSearch: default through the options database
-        options = PETSc.Options()
-        if not options.hasName("snes_linesearch_type"):
-            options.setValue("snes_linesearch_type", "basic")
         snes.setLineSearchPreCheck(self._exact_line_search)
         snes.setConvergenceTest(self._converged)
         snes.setTolerances(rtol=1e-12, atol=1e-50, stol=1e-13, max_it=200)
         configure_linear_solver(snes.getKSP())
-        snes.setFromOptions()
+        # petsc4py 3.18 has no SNES.getLineSearch: the default goes through the options
+        # database, only while setFromOptions reads it (no leak into later runs)
+        options = PETSc.Options()
+        default_line_search = not options.hasName("snes_linesearch_type")
+        if default_line_search:
+            options.setValue("snes_linesearch_type", "basic")
+        try:
+            snes.setFromOptions()
+        finally:
+            if default_line_search:
+                options.delValue("snes_linesearch_type")
+        check_factorization(snes.getKSP(), self.jacobian)
         return snes
 
     # -- J_n, its gradient and Jacobian ------------------------------------------
