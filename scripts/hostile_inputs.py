@@ -388,6 +388,20 @@ def _dangling(ctx):
     (ctx["work"] / "dangling").symlink_to(ctx["root"] / "nowhere" / "x")
 
 
+def _previous_run(ctx):
+    (ctx["work"] / "runs" / "square").mkdir(parents=True)
+    (ctx["work"] / "runs" / "square" / "summary.json").write_text("{}\n")
+
+
+def retry_without_restart(ctx, result) -> str | None:
+    """After a refused --restart, the same --out must still be usable."""
+    command = [*ctx["prefix"], "run", "square", *QUICK, "--out", str(ctx["out"]), "--quiet"]
+    retry = subprocess.run(
+        command, cwd=ctx["work"], env=ctx["env"], capture_output=True, text=True, timeout=RUN
+    )
+    return None if retry.returncode == 0 else f"retry exit {retry.returncode}: {retry.stderr[-80:]}"
+
+
 def _empty_out(ctx):
     ctx["out"].mkdir()
 
@@ -681,6 +695,7 @@ def size_cases() -> list[Case]:
         bad_set(
             "size-quadrature", "3 size", "quadrature = 2000", "discretization.quadrature=2000", None
         ),
+        bad_set("size-h-1e-300", "3 size", "h = 1e-300", "discretization.h=1e-300", too_big),
         Case(
             "size-rectangle",
             "3 size",
@@ -1007,6 +1022,7 @@ def value_cases() -> list[Case]:
             "discretization.h",
         ),
         bad_set("nonfinite-inf-E", "9 schema", "E = inf", "material.E=inf", "material.E"),
+        bad_set("huge-E", "5 garbage", "E = 1e308 (alpha overflows)", "material.E=1e308", None),
     ]
 
 
@@ -1150,6 +1166,17 @@ def out_cases() -> list[Case]:
             timeout=RUN,
         ),
         Case(
+            "out-no-square-2",
+            "5 nothing left",
+            "runs/square taken, bad mesh",
+            ["run", "square", *QUICK, "--set", "discretization.support=1.05", "--quiet"],
+            2,
+            "support",
+            setup=_previous_run,
+            out_dirs=(),
+            timeout=RUN,
+        ),
+        Case(
             "out-bad-input-no-runs",
             "5 nothing left",
             "bad input, default out",
@@ -1266,6 +1293,18 @@ def checkpoint_cases() -> list[Case]:
             timeout=RUN,
         ),
         bad("ckpt-2-ranks", "foreign .h5, 2 ranks", _foreign_h5, ranks=2),
+        Case(
+            "ckpt-retry-same-out",
+            "5 nothing left",
+            "bad --restart, then same --out",
+            ["run", "square", *QUICK, *RESTART, "--out", "@OUT@", "--quiet"],
+            2,
+            "restart",
+            setup=_foreign_h5,
+            check=retry_without_restart,
+            timeout=RUN,
+            out_dirs=(),
+        ),
         Case(
             "ckpt-ok",
             "9 baseline",
