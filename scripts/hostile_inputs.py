@@ -1324,25 +1324,37 @@ def polygon_cases() -> list[Case]:
         names = names + ["sides"] * (len(vertices) - len(names))
         return static_scene({"shape": "polygon", "vertices": vertices, "edge_names": names})
 
-    bowtie = [[0, 0], [1, 1], [1, 0], [0, 1]]
+    bowtie = [[0, 0], [1, 1], [1, 0], [0, 1]]  # zero signed area: refused today
+    # counter-clockwise (area 2) yet edge 3 crosses edge 1: gmsh aborts (exit 134) today
+    crossing = [[0, 0], [4, 0], [4, 2], [1, -1], [0, 2]]
+    intersect = "polygon|vertices|intersect|cross"
     return [
         Case(
             "poly-bowtie",
             "4 polygon",
-            "self-intersecting polygon",
+            "bow-tie (zero area)",
             run_args(),
             2,
-            "polygon|vertices|intersect",
+            intersect,
             polygon(bowtie),
         ),
         Case(
-            "poly-bowtie-2r",
+            "poly-self-intersect",
+            "4 polygon",
+            "self-intersecting, CCW",
+            run_args(),
+            2,
+            intersect,
+            polygon(crossing),
+        ),
+        Case(
+            "poly-self-intersect-2r",
             "4 polygon",
             "self-intersecting, 2 ranks",
             run_args(),
             2,
-            "polygon|vertices|intersect",
-            polygon(bowtie),
+            intersect,
+            polygon(crossing),
             ranks=2,
         ),
         Case(
@@ -1690,6 +1702,9 @@ def session_pids(sid: int) -> list[int]:
     return list(session_processes(sid))
 
 
+_ACTIVE: set[int] = set()  # sessions of the cases now running (killed if the script is)
+
+
 def kill_session(sid: int) -> None:
     for pid in session_pids(sid):
         try:
@@ -1772,6 +1787,7 @@ def execute(case: Case, ctx: dict, scale: float, result: Result) -> None:
         errors="replace",
         start_new_session=True,
     )
+    _ACTIVE.add(proc.pid)
     out_lines: list[str] = []
     err_lines: list[str] = []
     progress = threading.Event()
@@ -1806,6 +1822,7 @@ def execute(case: Case, ctx: dict, scale: float, result: Result) -> None:
             result.notes.append(f"processes of the run survived it: {names}")
             result.failed.append("executed")
             kill_session(proc.pid)
+    _ACTIVE.discard(proc.pid)
     for reader in readers:
         reader.join(timeout=5)
     proc.stdin.close()
@@ -1948,7 +1965,7 @@ def table(results: list[Result]) -> str:
     return "\n".join(rows)
 
 
-def write_csv(path: Path, results: list[Result], ctx_parefg: str) -> None:
+def write_csv(path: Path, results: list[Result]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as stream:
         writer = csv.writer(stream)
@@ -2020,8 +2037,38 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not Path(args.parefg).is_file():
         parser.error(f"--parefg {args.parefg}: no such file")
+    # Ctrl-C and kill end the script through the finally below (also when started in the
+    # background of a shell, which would ignore SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     start = time.monotonic()
-    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+    try:
+        results = run_all(cases, args)
+    except KeyboardInterrupt:
+        print("hostile_inputs: interrupted; the running cases were killed", file=sys.stderr)
+        return 130
+    finally:  # also on Ctrl-C of this script: no case's processes outlive it
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not stop this
+        for sid in list(_ACTIVE):
+            kill_session(sid)
+        if "base" in _CHECKPOINT:
+            shutil.rmtree(_CHECKPOINT["base"], ignore_errors=True)
+    print(table(results))
+    bad = [r for r in results if r.failed]
+    print(
+        f"\n{len(results) - len(bad)}/{len(results)} cases behaved; "
+        f"{time.monotonic() - start:.0f} s"
+    )
+    csv_path = Path(args.out) / "hostile_inputs.csv"
+    write_csv(csv_path, results)
+    print(f"CSV: {csv_path}")
+    return 1 if bad else 0
+
+
+def run_all(cases: list[Case], args) -> list[Result]:
+    """Run ``cases`` on ``args.jobs`` threads; progress on stderr; results in case order."""
+    pool = ThreadPoolExecutor(max_workers=max(1, args.jobs))
+    try:
         futures = [
             pool.submit(run_case, c, args.parefg, args.timeout_scale, args.keep) for c in cases
         ]
@@ -2035,18 +2082,9 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
                 flush=True,
             )
-    if "base" in _CHECKPOINT:
-        shutil.rmtree(_CHECKPOINT["base"], ignore_errors=True)
-    print(table(results))
-    bad = [r for r in results if r.failed]
-    print(
-        f"\n{len(results) - len(bad)}/{len(results)} cases behaved; "
-        f"{time.monotonic() - start:.0f} s"
-    )
-    csv_path = Path(args.out) / "hostile_inputs.csv"
-    write_csv(csv_path, results, args.parefg)
-    print(f"CSV: {csv_path}")
-    return 1 if bad else 0
+    finally:  # on Ctrl-C: start nothing new (the caller kills what runs)
+        pool.shutdown(wait=False, cancel_futures=True)
+    return results
 
 
 if __name__ == "__main__":
