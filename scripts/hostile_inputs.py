@@ -1106,7 +1106,7 @@ def petsc_cases() -> list[Case]:
         Case(
             "solver-table-name",
             "9 schema",
-            "[solver] 'a b' = 1",
+            "[solver] 'ksp_type;rm' = x",
             run_args(*QUICK, "--set", 'solver.ksp_type;rm="x"', scene="square"),
             2,
             "solver",
