@@ -118,6 +118,20 @@ def test_late_bad_input_leaves_no_default_output_directory(tmp_path, case):
     assert _listing(tmp_path) == []
 
 
+@pytest.mark.serial_only
+@pytest.mark.parametrize("case", LATE_FAILURES)
+def test_late_bad_input_of_a_sweep_leaves_nothing(tmp_path, case):
+    """A sweep creates its directory after validating the cases; a bad input found by its
+    first case (meshing, a PETSc option) removes it again, with or without --out."""
+    extra, words = LATE_FAILURES[case]
+    vary = ["--vary", "discretization.h=0.25,0.125", "--set", "time.dt=0.25"]
+    result = run_parefg(["sweep", "square", *vary, *extra], cwd=tmp_path)
+    assert_bad_input(result, words)
+    result = run_parefg(["sweep", "square", *vary, "--out", "D", *extra], cwd=tmp_path)
+    assert_bad_input(result, words)
+    assert _listing(tmp_path) == []
+
+
 # PETSc option -> words of the message
 BAD_PETSC = {
     "ksp type": (["-ksp_type", "bogus"], ["-ksp_type bogus", "KSP type bogus"]),
