@@ -8,6 +8,7 @@ exception on any rank aborts every rank (no hang under mpirun).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -41,6 +42,32 @@ def _split_petsc_options(argv: list[str]) -> tuple[list[str], list[str]]:
     return ours, petsc
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with parefg's error contract: one line on stderr (rank 0 only), exit 2.
+
+    It runs before MPI is initialized, so the rank comes from the launcher's environment.
+    """
+
+    def error(self, message: str):
+        rank = os.environ.get("OMPI_COMM_WORLD_RANK", os.environ.get("PMI_RANK", "0"))
+        if rank == "0":
+            command = self.prog.removeprefix("parefg").strip()
+            where = f"{command}: " if command else ""
+            print(f"parefg: error: {where}{message} (see {self.prog} --help)", file=sys.stderr)
+        sys.exit(2)
+
+
+def _count(text: str) -> int:
+    """A non-negative integer argument (argparse type)."""
+    value = int(text)
+    if value < 0:
+        raise ValueError(text)
+    return value
+
+
+_count.__name__ = "non-negative integer"  # argparse names the type in its message
+
+
 MAX_MEMORY_HELP = (
     "memory a run may use on each machine, in GB (default: 80%% of its available memory); "
     "a scene estimated to need more is refused before meshing"
@@ -48,7 +75,7 @@ MAX_MEMORY_HELP = (
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="parefg",
         description="PETSc-parallel EFG solver for dynamic contact with friction. "
         "PETSc options (-snes_monitor, -ksp_type, ...) are accepted anywhere.",
@@ -66,10 +93,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--out", help="output directory (must not exist or be empty)")
     run.add_argument("--quiet", action="store_true", help="no progress output")
-    run.add_argument("--fail-at-step", type=int, help="testing: fail on purpose at this step")
+    run.add_argument("--fail-at-step", type=_count, help="testing: fail on purpose at this step")
     run.add_argument(
         "--checkpoint-every",
-        type=int,
+        type=_count,
         default=0,
         metavar="N",
         help="write DIR/checkpoint.h5 (u, v, a, slip, step) every N steps",

@@ -77,6 +77,8 @@ class ContactLaw:
         self.operator = petsc_matrix(
             comm, local, points.values.getLocalSize()[1], points.values.getSize()[1]
         )
+        # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
+        self._point_vec = self.operator.createVecLeft()
 
     def _per_part(self, key: str, evaluate, t: float, nonnegative=False) -> np.ndarray:
         """Evaluate a datum (boundary.NAME.key) of each contact part at its points.
@@ -107,7 +109,7 @@ class ContactLaw:
 
     def kinematics(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
         """(u_nu, u_tau) at the points.  Collective."""
-        out = self.operator.createVecLeft()
+        out = self._point_vec
         self.operator.mult(u, out)
         values = out.getArray().reshape(-1, 2)
         return values[:, 0].copy(), values[:, 1].copy()
@@ -150,7 +152,7 @@ class ContactLaw:
     def add_residual(self, residual: PETSc.Vec, un, ut) -> None:
         """residual += B_nu^T (w p) + B_tau^T (w f).  Collective."""
         pressure, friction = self.forces(un, ut)
-        point_forces = self.operator.createVecLeft()
+        point_forces = self._point_vec
         point_forces.setArray(
             np.column_stack([pressure, friction]).ravel() * np.repeat(self.weights, 2)
         )

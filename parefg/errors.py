@@ -21,3 +21,15 @@ class DataError(InputError, SolverError):
     """
 
     exit_code = 2
+
+
+class Interrupted(SolverError):
+    """The run was stopped by a signal (Ctrl-C): exit code 128 + the signal number.
+
+    A SolverError for the CLI (one line, everything written so far kept readable), with
+    the shell's exit code of a process ended by that signal (130 for SIGINT).
+    """
+
+    def __init__(self, message: str, signal_number: int):
+        super().__init__(message)
+        self.exit_code = 128 + signal_number

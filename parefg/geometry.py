@@ -159,6 +159,26 @@ def _stdin_closed():
             os.close(null)
 
 
+@contextlib.contextmanager
+def _private_home():
+    """HOME is a private temporary directory inside the block, then restored.
+
+    gmsh's FLTK layer writes ~/.fltk/fltk.org/fltk.prefs at every gmsh.initialize, even
+    without a GUI: a run must not write outside its output directory, so it writes into
+    a directory that is removed afterwards.
+    """
+    saved = os.environ.get("HOME")
+    with tempfile.TemporaryDirectory(prefix="parefg-gmsh-home-") as home:
+        os.environ["HOME"] = home
+        try:
+            yield
+        finally:
+            if saved is None:
+                del os.environ["HOME"]
+            else:
+                os.environ["HOME"] = saved
+
+
 def _fd_open(fd: int) -> bool:
     try:
         os.fstat(fd)
@@ -168,6 +188,7 @@ def _fd_open(fd: int) -> bool:
 
 
 @_stdin_closed()
+@_private_home()
 def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> NodeCloud:
     """Build, mesh and extract one domain in this process (not collective).
 

@@ -49,6 +49,9 @@ class PointSet:
     rows: np.ndarray | None = None  # (n_points,) global, rank-independent row of each point
     build_gradients: Callable[[], PETSc.Mat] | None = field(default=None, repr=False)
     _gradients: PETSc.Mat | None = field(default=None, init=False, repr=False)
+    # work vectors at the points, created on first use and reused (no PETSc object per call)
+    _point_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
+    _gradient_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
 
     @property
     def gradients(self) -> PETSc.Mat | None:
@@ -60,21 +63,28 @@ class PointSet:
             self._gradients = self.build_gradients()
         return self._gradients
 
+    def _points_work(self) -> PETSc.Vec:
+        if self._point_vec is None:
+            self._point_vec = self.values.createVecLeft()
+        return self._point_vec
+
     def evaluate(self, u: PETSc.Vec) -> np.ndarray:
         """u_h at the points, (n_points, 2).  Collective."""
-        out = self.values.createVecLeft()
+        out = self._points_work()
         self.values.mult(u, out)
         return out.getArray().reshape(-1, 2).copy()
 
     def evaluate_gradient(self, u: PETSc.Vec) -> np.ndarray:
         """grad u_h at the points, (n_points, 2, 2) with [q, i, j] = d u_i / d x_j.  Collective."""
-        out = self.gradients.createVecLeft()
+        if self._gradient_vec is None:
+            self._gradient_vec = self.gradients.createVecLeft()
+        out = self._gradient_vec
         self.gradients.mult(u, out)
         return out.getArray().reshape(-1, 2, 2).copy()
 
     def integrate(self, density: np.ndarray, out: PETSc.Vec) -> None:
         """out = int density . phi_I = values^T (w density); density (n_points, 2).  Collective."""
-        point_vec = self.values.createVecLeft()
+        point_vec = self._points_work()
         point_vec.setArray((density * self.weights[:, None]).ravel())
         self.values.multTranspose(point_vec, out)
 

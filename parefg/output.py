@@ -25,8 +25,11 @@ step, holding a Polyvertex grid "nodes" and, when there is a contact boundary, a
 grid "contact"; scalars are Scalar attributes, 2-vectors Vector attributes, centred on the
 points. Every DataItem points into ``result.h5`` by a relative path.
 
-Crash safety: each :meth:`ResultWriter.write_step` flushes the HDF5 file and then rewrites
-the XDMF file atomically, so a run that dies later leaves both readable up to that step.
+Crash safety: each :meth:`ResultWriter.write_step` flushes the HDF5 file and then appends
+its snapshot to the XDMF file in place: one write at the offset of the closing tags puts
+the new ``<Grid>`` and the closing tags back (the file is a complete document before and
+after the write), so a run that dies later leaves both readable up to that step.  The
+cost of an output does not depend on how many came before it (no rewrite of the index).
 """
 
 import json
@@ -46,6 +49,19 @@ XDMF_BYTE_TYPES = {"i": "Char", "u": "UChar", "b": "UChar"}
 XDMF_NAME = "result.xdmf"
 # growable 1-D float columns of /history, NaN where a row lacked the column
 GROWING_FLOATS = dict(maxshape=(None,), dtype=np.float64, chunks=(256,), fillvalue=np.nan)
+# result.xdmf around the snapshots, as ElementTree indents the whole document
+XDMF_HEAD = (
+    '<?xml version="1.0"?>\n<Xdmf Version="3.0">\n  <Domain>\n'
+    '    <Grid Name="TimeSeries" GridType="Collection" CollectionType="Temporal">\n'
+)
+XDMF_TAIL = "    </Grid>\n  </Domain>\n</Xdmf>\n"
+HISTORY_BLOCK = 256  # per-step rows kept in memory before they are stored
+SNAPSHOT_LEVEL = 3  # Xdmf > Domain > Grid (temporal) > Grid (snapshot)
+# HDF5 1.8 file format: groups keep their links in a fractal heap and a B-tree v2, so
+# flushing a group of k outputs writes the changed blocks only; the 1.6 symbol-table
+# groups rewrite their whole name heap (O(k) bytes per output, quadratic in all).
+# HDF5 >= 1.8 (2008) reads it, as does ParaView.
+LIBVER = ("v108", "v108")
 
 
 class ResultWriter:
@@ -111,9 +127,12 @@ class ResultWriter:
         _refuse_existing(comm, self.h5_path, self.xdmf_path)
         self.node_rows = _PointRows.checked(comm, node_rows, self.n_nodes, "node")
         self.contact_rows = _PointRows.checked(comm, contact_rows, self.n_contact, "contact")
-        # one record per output step: (step, time, node field specs, contact field specs)
-        self.outputs: list[tuple[int, float, list, list]] = []
-        self.history_rows = 0
+        self.n_outputs = 0
+        self.xdmf_bytes_written = 0  # bytes handed to the XDMF file (rank 0), for tests
+        self._layouts: dict[str, tuple] = {}  # field path pattern -> agreed (trailing, dtype)
+        self.history_rows = 0  # rows stored in /history
+        self._pending_rows: list[dict] = []  # rows not stored yet (rank 0 keeps them)
+        self._n_pending = 0
         self.file = _open_h5(comm, self.h5_path)
         self._write_points("mesh/coordinates", self.node_rows, node_coords)
         _raise_on_all(comm, node_original_index is None, "node_original_index given on some ranks")
@@ -127,7 +146,7 @@ class ResultWriter:
         self.file.create_group("history")
         _store_attributes(self.file, comm.bcast(metadata, root=0))
         self.flush()
-        self._rewrite_xdmf()
+        self._xdmf = _XdmfIndex.create(comm, self.xdmf_path)
 
     def write_step(self, step: int, time: float, node_fields: dict, contact_fields: dict) -> None:
         """Store the fields of one output step; collective.
@@ -144,10 +163,11 @@ class ResultWriter:
         contact_fields : dict of str -> ndarray, shape (n_c_local,) or (n_c_local, 2)
             Values at this rank's Gamma_C points; ignored when ``n_contact == 0``.
 
-        Flushes ``result.h5``, then rewrites ``result.xdmf``: a later crash leaves both
-        readable up to this step.
+        Flushes ``result.h5``, then appends the step to ``result.xdmf``: a later crash
+        leaves both readable up to this step.  Its cost does not grow with the number of
+        outputs written before.
         """
-        k = len(self.outputs)
+        k = self.n_outputs
         step, time = self.comm.bcast((int(step), float(time)), root=0)
         node_specs = self._write_fields(f"fields/{{}}/{k:04d}", self.node_rows, node_fields)
         contact_specs = []
@@ -157,9 +177,10 @@ class ResultWriter:
             )
         for name, value in (("steps/time", time), ("steps/step", step)):
             _append_scalar(self.comm, self.file[name], value)
-        self.outputs.append((step, time, node_specs, contact_specs))
+        self.n_outputs += 1
         self.flush()
-        self._rewrite_xdmf()
+        text = snapshot_text(k, step, time, node_specs, contact_specs, self.n_nodes, self.n_contact)
+        self.xdmf_bytes_written += self._xdmf.append(text)
 
     def append_history(self, row: dict) -> None:
         """Append one row of the per-step table to /history; collective.
@@ -172,18 +193,37 @@ class ResultWriter:
             external_work and any extra columns (rank 0's values are stored). A column
             reads NaN in rows that lack it (also in rows before it first appeared).
 
-        Not flushed (rows come every time step): the next write_step, flush or close is.
+        Rows are kept in memory and stored in blocks of HISTORY_BLOCK rows, and by the
+        next write_step, flush or close (rows come every time step; one HDF5 resize per
+        column and block instead of per row).  Collective, without communication until
+        a block is stored.
         """
-        row = self.comm.bcast({str(key): float(value) for key, value in row.items()}, root=0)
+        if self.comm.rank == 0:
+            self._pending_rows.append({str(key): float(value) for key, value in row.items()})
+        self._n_pending += 1
+        if self._n_pending >= HISTORY_BLOCK:
+            self._store_history()
+
+    def _store_history(self) -> None:
+        """Append the pending rows (rank 0's values) to /history; collective."""
+        if self._n_pending == 0:
+            return
+        rows = self.comm.bcast(self._pending_rows, root=0)
+        self._pending_rows, self._n_pending = [], 0
         history = self.file["history"]
-        for column in sorted(set(row) - set(history)):
+        for column in sorted(set().union(*rows) - set(history)):
             history.create_dataset(column, shape=(self.history_rows,), **GROWING_FLOATS)
+        first, last = self.history_rows, self.history_rows + len(rows)
         for column in sorted(history):
-            _append_scalar(self.comm, history[column], row.get(column, np.nan))
-        self.history_rows += 1
+            dataset = history[column]
+            dataset.resize((last,))
+            if self.comm.rank == 0:
+                dataset[first:last] = [row.get(column, np.nan) for row in rows]
+        self.history_rows = last
 
     def flush(self) -> None:
-        """Push everything written so far to disk; collective."""
+        """Push everything written so far (pending history rows too) to disk; collective."""
+        self._store_history()
         self.file.flush()
 
     def close(self, metadata: dict) -> None:
@@ -197,9 +237,11 @@ class ResultWriter:
         """
         if self.file is None:
             return
+        self._store_history()
         _store_attributes(self.file, self.comm.bcast(metadata, root=0))
         self.file.close()
         self.file = None
+        self._xdmf.close()
 
     def _write_points(self, path: str, rows: "_PointRows", values) -> tuple:
         """Create dataset ``path`` with one row per global point and write this rank's rows."""
@@ -210,25 +252,88 @@ class ResultWriter:
         return trailing, dtype
 
     def _write_fields(self, path_pattern: str, rows: "_PointRows", fields: dict) -> list:
-        """Write every field under ``path_pattern.format(name)``; return their XDMF specs."""
+        """Write every field under ``path_pattern.format(name)``; return their XDMF specs.
+
+        The ranks agree on the names and layouts through one allgather per call once the
+        layouts are known (the first output checks each layout field by field).
+        """
         names = sorted(fields)
-        _raise_on_all(self.comm, names, "field names differ between ranks")
+        key = path_pattern.split("/")[0]
+        known = self._layouts.get(key)
+        if known is None:
+            _raise_on_all(self.comm, names, "field names differ between ranks")
+        else:
+            layout = [(name, *_layout(fields[name])) for name in names]
+            same = layout == known and all(fields[name].shape[0] == rows.n_local for name in names)
+            _raise_on_all(self.comm, same, f"{key}: names, shapes or dtypes changed", agree=False)
         specs = []
         for name in names:
             path = path_pattern.format(name)
-            trailing, dtype = self._write_points(path, rows, fields[name])
+            values = np.asarray(fields[name])
+            if known is None:
+                trailing, dtype = _agreed_layout(self.comm, path, values, rows.n_local)
+            else:
+                trailing, dtype = values.shape[1:], values.dtype
+            dataset = self.file.create_dataset(path, shape=(rows.n_global, *trailing), dtype=dtype)
+            rows.write(dataset, values)
             specs.append((name, path, trailing, dtype))
+        self._layouts[key] = [(name, *_layout(fields[name])) for name in names]
         return specs
 
-    def _rewrite_xdmf(self) -> None:
-        """Replace result.xdmf by one describing every output step written so far (rank 0)."""
+
+class _XdmfIndex:
+    """result.xdmf, grown in place on rank 0: the head, the snapshots, the closing tags.
+
+    Every append is one ``pwrite`` of (new snapshot + closing tags) at the offset of the
+    closing tags, so the file is a complete XDMF document before and after it.  A short
+    write (disk full) puts the closing tags back and raises OSError.
+    """
+
+    def __init__(self, comm, descriptor: int | None, tail_offset: int):
+        self.comm, self.descriptor, self.tail_offset = comm, descriptor, tail_offset
+
+    @classmethod
+    def create(cls, comm, path: pathlib.Path) -> "_XdmfIndex":
+        """Write an XDMF document with no snapshot; collective (rank 0 writes)."""
+        descriptor, error = None, None
+        if comm.rank == 0:
+            try:
+                descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+                os.write(descriptor, (XDMF_HEAD + XDMF_TAIL).encode())
+            except OSError as failure:
+                error = f"cannot write {path}: {failure.strerror}"
+        error = comm.bcast(error, root=0)
+        if error:
+            raise OSError(error)
+        return cls(comm, descriptor, len(XDMF_HEAD))
+
+    def append(self, snapshot: str) -> int:
+        """Add one snapshot; collective (rank 0 writes).  Returns the bytes written."""
+        written, error = 0, None
         if self.comm.rank == 0:
-            text = xdmf_document(self.outputs, self.n_nodes, self.n_contact)
-            temporary = self.xdmf_path.with_suffix(".xdmf.tmp")
-            temporary.write_text(text)
-            # rename is atomic: a crash never leaves a half-written index
-            os.replace(temporary, self.xdmf_path)
-        self.comm.barrier()
+            data = (snapshot + XDMF_TAIL).encode()
+            try:
+                written = os.pwrite(self.descriptor, data, self.tail_offset)
+                if written != len(data):
+                    raise OSError(f"short write ({written} of {len(data)} bytes)")
+                self.tail_offset += len(data) - len(XDMF_TAIL)
+            except OSError as failure:
+                self._restore_tail()
+                error = f"cannot append to {XDMF_NAME}: {failure}"
+        error = self.comm.bcast(error, root=0)
+        if error:
+            raise OSError(error)
+        return written
+
+    def _restore_tail(self) -> None:
+        """Cut the file back to the last complete snapshot and close it again (rank 0)."""
+        os.pwrite(self.descriptor, XDMF_TAIL.encode(), self.tail_offset)
+        os.ftruncate(self.descriptor, self.tail_offset + len(XDMF_TAIL))
+
+    def close(self) -> None:
+        if self.descriptor is not None:
+            os.close(self.descriptor)
+            self.descriptor = None
 
 
 class _PointRows:
@@ -290,6 +395,12 @@ def _raise_on_all(comm, local, message: str, agree: bool = True) -> None:
         raise ValueError(message)
 
 
+def _layout(values) -> tuple:
+    """(trailing shape, dtype string) of a point array."""
+    values = np.asarray(values)
+    return values.shape[1:], values.dtype.str
+
+
 def _agreed_layout(comm, path: str, values: np.ndarray, n_local: int) -> tuple:
     """Trailing shape and dtype of a point array, checked equal on every rank; collective."""
     local_ok = values.ndim in (1, 2) and values.shape[0] == n_local
@@ -322,10 +433,10 @@ def _refuse_existing(comm, *paths: pathlib.Path) -> None:
 def _open_h5(comm, path: pathlib.Path):
     """Create ``path`` (never overwriting) with the MPI-IO driver on > 1 rank; collective."""
     if comm.size == 1:
-        return h5py.File(path, "w-")
+        return h5py.File(path, "w-", libver=LIBVER)
     if not h5py.get_config().mpi:
         raise RuntimeError("h5py lacks MPI support; run under mpirun with Debian's h5py-mpi")
-    return h5py.File(path, "w-", driver="mpio", comm=comm)
+    return h5py.File(path, "w-", driver="mpio", comm=comm, libver=LIBVER)
 
 
 def _store_attributes(h5file, metadata: dict) -> None:
@@ -368,23 +479,29 @@ def _to_json(value):
 
 
 def xdmf_document(outputs: list, n_nodes: int, n_contact: int) -> str:
-    """XDMF 3 text for the output steps ``outputs`` (see :class:`ResultWriter`); local."""
-    root = ET.Element("Xdmf", Version="3.0")
-    domain = ET.SubElement(root, "Domain")
-    series = ET.SubElement(
-        domain, "Grid", Name="TimeSeries", GridType="Collection", CollectionType="Temporal"
+    """XDMF 3 text for the output steps ``outputs`` (see :class:`ResultWriter`); local.
+
+    ``outputs`` lists (step, time, node field specs, contact field specs) per output.
+    """
+    snapshots = (snapshot_text(k, *output, n_nodes, n_contact) for k, output in enumerate(outputs))
+    return XDMF_HEAD + "".join(snapshots) + XDMF_TAIL
+
+
+def snapshot_text(
+    k: int, step: int, time: float, node_specs, contact_specs, n_nodes: int, n_contact: int
+) -> str:
+    """The indented ``<Grid>`` of output ``k`` (one line per element, newline-terminated)."""
+    snapshot = ET.Element(
+        "Grid", Name=f"output_{k:04d}", GridType="Collection", CollectionType="Spatial"
     )
-    for k, (step, time, node_specs, contact_specs) in enumerate(outputs):
-        snapshot = ET.SubElement(
-            series, "Grid", Name=f"output_{k:04d}", GridType="Collection", CollectionType="Spatial"
-        )
-        ET.SubElement(snapshot, "Time", Value=repr(time))
-        ET.SubElement(snapshot, "Information", Name="step", Value=str(step))
-        _point_grid(snapshot, "nodes", "mesh/coordinates", n_nodes, node_specs)
-        if n_contact > 0:
-            _point_grid(snapshot, "contact", "contact/coordinates", n_contact, contact_specs)
-    ET.indent(root)
-    return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+    ET.SubElement(snapshot, "Time", Value=repr(time))
+    ET.SubElement(snapshot, "Information", Name="step", Value=str(step))
+    _point_grid(snapshot, "nodes", "mesh/coordinates", n_nodes, node_specs)
+    if n_contact > 0:
+        _point_grid(snapshot, "contact", "contact/coordinates", n_contact, contact_specs)
+    ET.indent(snapshot, level=SNAPSHOT_LEVEL)
+    indent = "  " * SNAPSHOT_LEVEL
+    return indent + ET.tostring(snapshot, encoding="unicode") + "\n"
 
 
 def _point_grid(parent, name: str, coordinates: str, n_points: int, specs: list) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import resource
 import sys
 import time
@@ -10,81 +11,157 @@ from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from parefg import __version__
 from parefg.budget import check_problem_size
 from parefg.checkpoint import read_checkpoint, write_checkpoint
-from parefg.errors import InputError, SolverError
+from parefg.errors import InputError, Interrupted, SolverError
+from parefg.monitors import Progress, StopRequest
 from parefg.operators import build_discretization
 from parefg.output import ResultWriter
+from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
 from parefg.profiling import factorization_stats, phase, start_logging
 from parefg.simulation import Simulation
 
+# [output] fields -> node datasets of each (the "contact" entry writes the Gamma_C fields)
+NODE_FIELDS = {"u": "displacement", "v": "velocity", "a": "acceleration", "von_mises": "von_mises"}
+# steps between collective PETSc.garbage_cleanup calls: the loop allocates no PETSc object
+# per step, this frees what callbacks or observers may still drop
+GARBAGE_EVERY = 1000
+
 
 def choose_output_dir(comm, scene_name: str, requested: str | None) -> Path:
-    """The run's output directory; never an existing non-empty one.  Collective.
+    """Check and create the run's output directory; never an existing non-empty one.
 
-    Without --out: runs/<scene>, or runs/<scene>-2, -3, ... if taken.
+    Without --out: runs/<scene>, or runs/<scene>-2, -3, ... if taken.  Collective.
+    """
+    path = plan_output_dir(comm, scene_name, requested)
+    create_output_dir(comm, path, requested)
+    return path
+
+
+def plan_output_dir(comm, scene_name: str, requested: str | None) -> Path:
+    """The run's output directory, checked but not created (nothing is written).  Collective.
+
+    Refuses (InputError on every rank) an existing non-empty directory, a path that is
+    not a directory, a dangling symbolic link, a name the file system cannot hold, and a
+    path under a file; what only mkdir can tell (/proc, a read-only file system) is
+    refused by :func:`create_output_dir`.
     """
     message, path = None, None
     if comm.rank == 0:
         if requested is not None:
             path = Path(requested)
-            if path.exists() and (not path.is_dir() or any(path.iterdir())):
-                message = f"output directory {path} exists and is not empty; choose another --out"
         else:
             base = Path("runs") / scene_name
             path, n = base, 1
-            while path.exists():
+            while path.exists() or path.is_symlink():
                 n += 1
                 path = base.with_name(f"{base.name}-{n}")
-        if message is None:
-            path.mkdir(parents=True, exist_ok=True)
+        message = _unusable_output(path, requested)
     message, path = comm.bcast((message, path), root=0)
     if message:
         raise InputError(message)
     return path
 
 
-class Progress:
-    """Rank-0 progress lines, about every 10 % of the run, with Newton counts and ETA."""
+def create_output_dir(comm, path: Path, requested: str | None) -> list[Path]:
+    """Create ``path`` and its missing parents; returns the directories created.  Collective.
 
-    def __init__(self, comm, n_steps: int, quiet: bool):
-        self.show = comm.rank == 0 and not quiet
-        self.n_steps, self.start = n_steps, time.perf_counter()
-        self.every = max(1, n_steps // 10)
+    On failure the directories this call created are removed again and InputError is
+    raised on every rank.
+    """
+    message, created = None, []
+    if comm.rank == 0:
+        missing = [p for p in (path, *path.parents) if not (p.exists() or p.is_symlink())]
+        try:
+            for directory in reversed(missing):
+                directory.mkdir()
+                created.append(directory)
+        except OSError as error:
+            remove_empty_dirs(created)
+            created = []
+            message = f"{_output_label(path, requested)}: cannot create it ({_os_reason(error)})"
+    message, created = comm.bcast((message, created), root=0)
+    if message:
+        raise InputError(message)
+    return created
 
-    def update(self, n: int, t: float, newton: int) -> None:
-        if not self.show or (n % self.every and n != self.n_steps):
-            return
-        elapsed = time.perf_counter() - self.start
-        eta = elapsed / n * (self.n_steps - n)
-        print(
-            f"  step {n:>5}/{self.n_steps}  t = {t:<10.4g} newton {newton:>2}  "
-            f"elapsed {elapsed:7.2f} s  eta {eta:7.2f} s",
-            flush=True,
-        )
+
+def remove_empty_dirs(created: list[Path]) -> None:
+    """Remove the directories a run created (innermost first) as long as they are empty."""
+    for directory in reversed(created):
+        try:
+            directory.rmdir()
+        except OSError:
+            return  # not empty (or gone): keep it and everything above it
+
+
+def _output_label(path: Path, requested: str | None) -> str:
+    text = str(path)
+    if len(text) > 80:
+        text = f"{text[:50]}...{text[-20:]} ({len(text)} characters)"
+    return f"--out {text}" if requested is not None else f"output directory {text}"
+
+
+def _os_reason(error: OSError) -> str:
+    return error.strerror or str(error)
+
+
+def _unusable_output(path: Path, requested: str | None) -> str | None:
+    """Why ``path`` cannot become the output directory (checked without writing), or None."""
+    label = _output_label(path, requested)
+    try:
+        if path.is_symlink() and not path.exists():
+            return f"{label}: is a dangling symbolic link; choose another --out"
+        if path.exists():
+            if not path.is_dir():
+                return f"{label}: exists and is not a directory; choose another --out"
+            if any(path.iterdir()):
+                return f"output directory {path} exists and is not empty; choose another --out"
+            return None
+        return _uncreatable(path, label)
+    except OSError as error:  # a name too long for the file system, a loop of links, ...
+        return f"{label}: cannot create it ({_os_reason(error)})"
+
+
+def _uncreatable(path: Path, label: str) -> str | None:
+    """For a path that does not exist: why mkdir would fail, as far as it is known now."""
+    ancestor = next(p for p in path.absolute().parents if p.exists())
+    if not ancestor.is_dir():
+        return f"{label}: cannot create it ({ancestor} is not a directory)"
+    name_max = os.pathconf(ancestor, "PC_NAME_MAX")
+    path_max = os.pathconf(ancestor, "PC_PATH_MAX")
+    longest = max(len(os.fsencode(part)) for part in path.parts)
+    if longest > name_max:
+        return f"{label}: cannot create it (a name of {longest} bytes; the limit is {name_max})"
+    if len(os.fsencode(path.absolute())) >= path_max:
+        return f"{label}: cannot create it (longer than the path limit of {path_max} bytes)"
+    if os.statvfs(ancestor).f_flag & os.ST_RDONLY:
+        return f"{label}: cannot create it ({ancestor} is on a read-only file system)"
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        return f"{label}: cannot create it ({ancestor} is not writable)"
+    return None
 
 
 def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
-    """u_h, velocity, acceleration, von Mises at the nodes; contact state at Gamma_C points."""
-    nodes, scene = sim.disc.nodes, sim.scene
-    grads = nodes.evaluate_gradient(state.u)  # (n_owned, 2, 2)
-    strain = 0.5 * (grads + np.swapaxes(grads, 1, 2))
-    trace = strain[:, 0, 0] + strain[:, 1, 1]
-    sxx = scene.lam * trace + 2 * scene.mu * strain[:, 0, 0]
-    syy = scene.lam * trace + 2 * scene.mu * strain[:, 1, 1]
-    szz = scene.lam * trace  # plane strain
-    sxy = 2 * scene.mu * strain[:, 0, 1]
-    von_mises = np.sqrt(0.5 * ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2) + 3 * sxy**2)
+    """The [output] fields: at the nodes u_h, velocity, acceleration, von Mises; the contact
+    state at the Gamma_C points.  Collective.
+
+    Only what the scene asks for is computed: without von_mises the nodal gradient
+    operator (the largest operator) is never built.  Before the first step the status
+    is open and the tangential traction 0 (no step has been solved yet).
+    """
+    nodes, scene, wanted = sim.disc.nodes, sim.scene, set(sim.scene.output_fields)
+    vectors = {"u": state.u, "v": state.v, "a": state.a}
     node_fields = {
-        "displacement": nodes.evaluate(state.u),
-        "velocity": nodes.evaluate(state.v),
-        "acceleration": nodes.evaluate(state.a),
-        "von_mises": von_mises,
+        NODE_FIELDS[key]: nodes.evaluate(vector) for key, vector in vectors.items() if key in wanted
     }
+    if "von_mises" in wanted:
+        node_fields["von_mises"] = _von_mises(scene, nodes.evaluate_gradient(state.u))
     contact_fields = {}
-    if sim.law is not None:
+    if sim.law is not None and "contact" in wanted:
         law = sim.law
         un = law.kinematics(state.u)[0]
         contact_fields = {
@@ -94,6 +171,17 @@ def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
             "status": law.step_status,
         }
     return node_fields, contact_fields
+
+
+def _von_mises(scene, grads: np.ndarray) -> np.ndarray:
+    """Plane-strain von Mises stress from displacement gradients (n, 2, 2)."""
+    strain = 0.5 * (grads + np.swapaxes(grads, 1, 2))
+    trace = strain[:, 0, 0] + strain[:, 1, 1]
+    sxx = scene.lam * trace + 2 * scene.mu * strain[:, 0, 0]
+    syy = scene.lam * trace + 2 * scene.mu * strain[:, 1, 1]
+    szz = scene.lam * trace  # plane strain
+    sxy = 2 * scene.mu * strain[:, 0, 1]
+    return np.sqrt(0.5 * ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2) + 3 * sxy**2)
 
 
 def _writer(comm, sim: Simulation, out_dir: Path, metadata: dict) -> ResultWriter:
@@ -121,6 +209,7 @@ def run_scene(
     checkpoint_every: int = 0,
     restart: str | None = None,
     max_memory: float | None = None,
+    observers=(),
 ) -> dict:
     """Run ``scene`` on ``comm``; write result.h5/.xdmf and summary.json.  Collective.
 
@@ -128,49 +217,97 @@ def run_scene(
     continues from such a file (its step + 1 onwards) instead of the initial state.
     ``max_memory`` (GB per machine; default: its available memory) bounds the estimated
     size of the run: a scene beyond it is refused before anything is created.
+    Each of ``observers`` is called as ``observer(n, sim, state)`` after every step n, on
+    every rank.
+
+    Outputs: with ``[output] every`` = N > 0, t = 0 (unless restarted), every N-th step
+    and the final step; with 0 the final step only.  SIGINT / SIGTERM stop the run after
+    the step every rank has finished (that step is written too): summary.json says
+    "interrupted" and Interrupted (exit 128 + signal) is raised.
+
+    The scene's [solver] options apply for this run only, under the command line's; at
+    the end, rank 0 warns on stderr about PETSc options no object used.
+
+    Everything that can be checked -- the problem size, the output path, the
+    discretization, the solver options, the checkpoint -- is checked before the output
+    directory is created, so bad input writes nothing.
 
     Returns the summary dict (the contents of summary.json).
     """
+    options = dict(fail_at_step=fail_at_step, checkpoint_every=checkpoint_every)
+    with StopRequest(comm) as stop, scene_options(scene.solver_options) as from_scene:
+        summary = _run(comm, scene, out, quiet, stop, restart, observers, max_memory, **options)
+        warning = unused_options_warning(comm, from_scene)
+    if warning and comm.rank == 0:
+        print(warning, file=sys.stderr, flush=True)
+    return summary
+
+
+def _run(
+    comm, scene, out, quiet, stop, restart, observers, max_memory, fail_at_step, checkpoint_every
+) -> dict:
     start = time.perf_counter()
     start_logging()
     budget = check_problem_size(comm, scene, max_memory)
-    out_dir = choose_output_dir(comm, scene.name, out)
+    out_dir = plan_output_dir(comm, scene.name, out)
     say = (lambda *a: print(*a, flush=True)) if comm.rank == 0 and not quiet else (lambda *a: None)
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
     disc = build_discretization(comm, scene, budget)
-    sim = Simulation(comm, scene, disc)
+    stop.reclaim()  # meshing (gmsh) may have replaced the SIGINT handler
+    with petsc_configuration(comm, "the solvers", scene.solver_options):
+        sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
+        state, first = sim.start(), 1  # sets up the mass solve (-mass_ options) too
     say(
         f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "
         f"degree {scene.degree}, {'contact' if sim.law else 'no contact'}"
     )
-    metadata = {"params": scene.params, "version": __version__, "mpi_ranks": comm.size}
-    with phase(sim.timings, "output"):
-        writer = _writer(comm, sim, out_dir, metadata)
-
-    state, first = sim.start(), 1
     if restart is not None:
         state, done, last_row = read_checkpoint(comm, Path(restart), sim)
         state, first = sim.resume(state, done, last_row), done + 1
-    else:
+    created = create_output_dir(comm, out_dir, out)
+    metadata = {"params": scene.params, "version": __version__, "mpi_ranks": comm.size}
+    try:
+        with phase(sim.timings, "output"):
+            writer = _writer(comm, sim, out_dir, metadata)
+    except BaseException:
+        if comm.rank == 0:
+            remove_empty_dirs(created)
+        raise
+    if restart is None:
         writer.append_history(sim.history[0])  # the t = 0 row
-    progress = Progress(comm, scene.n_steps, quiet)
+        if _is_output_step(0, scene):
+            with phase(sim.timings, "output"):
+                writer.write_step(0, 0.0, *_output_fields(sim, state))
+    progress = Progress(comm, scene.n_steps, quiet, first)
     try:
         for n in range(first, scene.n_steps + 1):
             if fail_at_step is not None and n == fail_at_step:
                 raise SolverError(f"injected failure at step {n} (--fail-at-step)")
             state = sim.step(state, n)
             row = sim.history[-1]
+            # the one decision per step every rank takes together (a signal at the final
+            # step changes nothing: the run is complete)
+            number = stop.agreed() if n < scene.n_steps else 0
             with phase(sim.timings, "output"):
                 writer.append_history(row)
-                if _is_output_step(n, scene):
+                if _is_output_step(n, scene) or number:
                     node_fields, contact_fields = _output_fields(sim, state)
                     sim.check_fields(n, {**node_fields, **contact_fields})
                     writer.write_step(n, row["time"], node_fields, contact_fields)
                 if checkpoint_every > 0 and n % checkpoint_every == 0:
                     write_checkpoint(comm, out_dir / "checkpoint.h5", sim, state, n)
             progress.update(n, row["time"], row["newton_iterations"])
-    except SolverError:
-        summary = _summary(comm, scene, disc, sim, start, failed=True)
+            for observer in observers:
+                observer(n, sim, state)
+            if n % GARBAGE_EVERY == 0:
+                PETSc.garbage_cleanup(comm)
+            if number:
+                name = StopRequest.name(number)
+                message = f"interrupted by {name} after step {n} of {scene.n_steps}"
+                raise Interrupted(f"{message}; results so far in {out_dir}", number)
+    except SolverError as error:
+        status = "interrupted" if isinstance(error, Interrupted) else "failed"
+        summary = _summary(comm, scene, disc, sim, start, status=status)
         _write_summary(comm, out_dir, summary)
         writer.close(_flat(summary))
         raise
@@ -184,11 +321,12 @@ def run_scene(
 
 
 def _is_output_step(n: int, scene) -> bool:
+    """Step n (0: the initial state) is written: the final one, and every ``every``-th."""
     every = scene.output_every
     return n == scene.n_steps or (every > 0 and n % every == 0)
 
 
-def _summary(comm, scene, disc, sim, start, errors=None, failed=False) -> dict:
+def _summary(comm, scene, disc, sim, start, errors=None, status="ok") -> dict:
     timings = {"total": time.perf_counter() - start, **disc.timings}
     timings["assembly"] = disc.timings["assembly"] + sim.timings["assembly"]
     timings.update(solve=sim.timings["solve"], output=sim.timings["output"])
@@ -206,7 +344,7 @@ def _summary(comm, scene, disc, sim, start, errors=None, failed=False) -> dict:
         "newton_iterations": sim.newton_iterations,
         "linear_iterations": sim.linear_iterations,
         "factorizations": sim.solver.factorizations,
-        "max_newton_per_step": max((r["newton_iterations"] for r in sim.history), default=0),
+        "max_newton_per_step": sim.max_newton_per_step,
         # peak resident memory of the largest rank (ru_maxrss is in KiB on Linux)
         "peak_rss_mb": comm.allreduce(
             resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, op=MPI.MAX
@@ -214,7 +352,7 @@ def _summary(comm, scene, disc, sim, start, errors=None, failed=False) -> dict:
         / 1024,
         "mls_condition": {"min": disc.condition_range[0], "max": disc.condition_range[1]},
         "version": __version__,
-        "status": "failed" if failed else "ok",
+        "status": status,
     }
     if errors is not None:
         summary["errors"] = errors

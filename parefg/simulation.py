@@ -32,11 +32,20 @@ ENERGY_GROWTH = 1e6
 
 
 class Simulation:
-    """The time loop of one scene on ``comm``.  Construction and every method are collective."""
+    """The time loop of one scene on ``comm``.  Construction and every method are collective.
 
-    def __init__(self, comm, scene, disc):
+    The per-step work vectors and the two State buffers the loop alternates between are
+    allocated once: petsc4py frees a PETSc object Python drops only at a collective
+    ``PETSc.garbage_cleanup``, so a vector created per step is a leak.
+
+    ``keep_history`` False keeps only the last row of :attr:`history` (a long run would
+    otherwise hold one dict per step); :attr:`max_newton_per_step` covers every step.
+    """
+
+    def __init__(self, comm, scene, disc, keep_history: bool = True):
         require_constraints(scene)
         self.comm, self.scene, self.disc = comm, scene, disc
+        self.keep_history = keep_history
         self.scheme = make_scheme(scene)
         self.guard = DataGuard(comm, scene)
         self.law = None
@@ -57,6 +66,15 @@ class Simulation:
         self._energy_budget = [0.0, 0.0]  # initial stored energy, largest |external work|
         self.newton_iterations = 0
         self.linear_iterations = 0
+        self.max_newton_per_step = 0
+        create = disc.create_vec
+        # predictors, right-hand side, a scratch vector, one part of a load, a matrix product
+        self._ut, self._vt, self._b, self._work, self._part, self._product = (
+            create() for _ in range(6)
+        )
+        self._du, self._mean_forces = create(), create()
+        self._last_forces, self._next_forces = create(), create()  # F_{n-1} and F_n
+        self._spare: State | None = None  # buffers of the next level (the level before last)
 
     def _a_const(self) -> PETSc.Mat:
         """A_const = c_M M + K + alpha_D G_D, with the Gamma_C pattern reserved."""
@@ -97,14 +115,16 @@ class Simulation:
         return RigidModes(self.comm, self.disc, self.a_const, self.law)
 
     # -- loads ---------------------------------------------------------------------
-    def external_forces(self, t: float) -> PETSc.Vec:
+    def external_forces(self, t: float, out: PETSc.Vec | None = None) -> PETSc.Vec:
         """F(t): body force and Neumann tractions integrated against the shape functions.
 
-        Collective; bad values go to ``self.guard`` (checked before the next solve).
+        Written into ``out`` (a new vector if None), which is returned.  Collective; bad
+        values go to ``self.guard`` (checked before the next solve).
         """
         disc, scene = self.disc, self.scene
-        total = disc.create_vec()
-        part = disc.create_vec()
+        total = disc.create_vec() if out is None else out
+        total.set(0.0)
+        part = self._part
         points = disc.domain.points
         x, y = points.T
         force = self.guard.evaluate(("loads", "f"), scene.body_force, points, t, x, y, t)
@@ -134,7 +154,7 @@ class Simulation:
 
     def _add_dirichlet_data(self, t: float, out: PETSc.Vec) -> None:
         """out += alpha_D g_D(t), g_D = int_{Gamma_D} ubar(t) . phi_I."""
-        part = self.disc.create_vec()
+        part = self._part
         for name in self.dirichlet_names:
             self.disc.boundary[name].integrate(self._dirichlet_value(name, t), part)
             out.axpy(self.scene.alpha_dirichlet, part)
@@ -201,8 +221,9 @@ class Simulation:
 
     def start(self) -> State:
         """Initial state, and the t = 0 row of the per-step table."""
-        self._last_forces = self.external_forces(0.0)
+        self.external_forces(0.0, self._last_forces)
         state = self.initial_state(self._last_forces)
+        self._spare = None
         self._dirichlet_previous = {}
         dirichlet_energy, _ = self._dirichlet_terms(state.u, 0.0)
         self.guard.check()
@@ -215,8 +236,8 @@ class Simulation:
             "newton_iterations": 0,
             "linear_iterations": 0,
             "active_contact_points": 0,
-            "kinetic_energy": 0.5 * _quadratic(self.disc.mass, state.v),
-            "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, state.u),
+            "kinetic_energy": 0.5 * self._quadratic(self.disc.mass, state.v),
+            "elastic_energy": 0.5 * self._quadratic(self.disc.stiffness, state.u),
             "penalty_energy": dirichlet_energy + contact_energy,
             "dissipated_energy": 0.0,
             "external_work": 0.0,
@@ -229,7 +250,8 @@ class Simulation:
     def resume(self, state: State, step: int, last_row: dict) -> State:
         """Continue from a checkpointed state after ``step`` (see parefg.checkpoint)."""
         t = step * self.scheme.k
-        self._last_forces = self.external_forces(t)
+        self.external_forces(t, self._last_forces)
+        self._spare = None
         self._dirichlet_previous = {}
         self._dirichlet_terms(state.u, t)
         self.guard.check()  # also the friction bound that read_checkpoint set
@@ -239,35 +261,50 @@ class Simulation:
 
     # -- the loop ------------------------------------------------------------------------
     def step(self, state: State, n: int) -> State:
-        """Advance from t_{n-1} to t_n = n k."""
+        """Advance from t_{n-1} to t_n = n k.
+
+        The returned State reuses the vectors of the level before ``state``: the vectors
+        of ``state`` itself are overwritten by the step after next, so keep a level only
+        by copying it.
+        """
         t = n * self.scheme.k
-        ut, vt = self.scheme.predict(state)
-        forces = self.external_forces(t)
-        b = forces.copy()
+        new = self._next_level(state)
+        ut, vt = self._ut, self._vt
+        self.scheme.predict(state, ut, vt)
+        forces = self.external_forces(t, self._next_forces)
+        b = self._b
+        forces.copy(b)
         self._add_dirichlet_data(t, b)
         if self.scheme.mass_coefficient:
-            mu = self.disc.create_vec()
-            self.disc.mass.mult(ut, mu)
-            b.axpy(self.scheme.mass_coefficient, mu)
-        u = ut.copy()  # initial guess: the predictor
+            self.disc.mass.mult(ut, self._work)
+            b.axpy(self.scheme.mass_coefficient, self._work)
+        ut.copy(new.u)  # initial guess: the predictor
         if self.law is not None:
             self.law.set_time(t)
         self.guard.check()  # the step's data, before they reach the solve
         with phase(self.timings, "solve"):
             try:
-                newton, linear = self.solver.solve(b, u, t)
+                newton, linear = self.solver.solve(b, new.u, t)
             except SolverError:
-                self._check_rigid_modes(u, t)  # the better message, if that is the cause
+                self._check_rigid_modes(new.u, t)  # the better message, if that is the cause
                 raise
-        self._check_rigid_modes(u, t)
+        self._check_rigid_modes(new.u, t)
         self.newton_iterations += newton
         self.linear_iterations += linear
-        new = self.scheme.update(state, u, ut, vt)
+        self.max_newton_per_step = max(self.max_newton_per_step, newton)
+        self.scheme.update(state, new, ut, vt)
         self._check_state(new, n)
         # A finite but huge state overflows the energies: _record's check reports it.
         with np.errstate(over="ignore", invalid="ignore"):
             self._record(state, new, t, forces, newton, linear)
+        self._spare = state
         return new
+
+    def _next_level(self, state: State) -> State:
+        """The buffers of the new level: the spare one, unless it is ``state`` itself."""
+        spare = self._spare
+        self._spare = None
+        return State.like(state.u) if spare is None or spare is state else spare
 
     # -- guards ------------------------------------------------------------------------
     def _check_rigid_modes(self, u: PETSc.Vec, t: float) -> None:
@@ -362,22 +399,28 @@ class Simulation:
             "newton_iterations": newton,
             "linear_iterations": linear,
             "active_contact_points": active,
-            "kinetic_energy": 0.5 * _quadratic(self.disc.mass, new.v),
-            "elastic_energy": 0.5 * _quadratic(self.disc.stiffness, new.u),
+            "kinetic_energy": 0.5 * self._quadratic(self.disc.mass, new.v),
+            "elastic_energy": 0.5 * self._quadratic(self.disc.stiffness, new.u),
             "penalty_energy": dirichlet_energy + contact_energy,
             "dissipated_energy": dissipated,
             "external_work": work,
         }
         self._check_row(row, int(round(t / self.scheme.k)))
         self.history.append(row)
+        if not self.keep_history:
+            del self.history[:-1]
 
     def _load_work(self, u_old, u_new, forces) -> float:
-        """Trapezoidal work of F over the step: (F_{n-1} + F_n)/2 . (u_n - u_{n-1})."""
-        du = u_new.copy()
+        """Trapezoidal work of F over the step: (F_{n-1} + F_n)/2 . (u_n - u_{n-1}).
+
+        Then F_n becomes F_{n-1}, and the old F_{n-1} the buffer of the next step's F.
+        """
+        du, mean = self._du, self._mean_forces
+        u_new.copy(du)
         du.axpy(-1.0, u_old)
-        mean = forces.copy()
+        forces.copy(mean)
         mean.axpy(1.0, self._last_forces)
-        self._last_forces = forces
+        self._last_forces, self._next_forces = forces, self._last_forces
         return 0.5 * mean.dot(du)
 
     def _dirichlet_terms(self, u: PETSc.Vec, t: float) -> tuple[float, float]:
@@ -408,13 +451,12 @@ class Simulation:
             return None
         return relative_errors(self.comm, self.disc, self.scene.exact, u, t)
 
+    def _quadratic(self, matrix: PETSc.Mat, x: PETSc.Vec) -> float:
+        """x^T A x for a square DOF matrix A (mass, stiffness).  Collective."""
+        matrix.mult(x, self._product)
+        return self._product.dot(x)
+
 
 def _stored(row: dict) -> float:
     """Kinetic + elastic + penalty-stored + dissipated energy of a history row."""
     return sum(row[name] for name in STORED_ENERGIES)
-
-
-def _quadratic(matrix: PETSc.Mat, x: PETSc.Vec) -> float:
-    y = matrix.createVecLeft()
-    matrix.mult(x, y)
-    return y.dot(x)

@@ -34,12 +34,49 @@ from parefg.errors import SolverError
 Reason = PETSc.SNES.ConvergedReason
 
 
+FACTORIZATIONS = ("lu", "cholesky", "ilu", "icc")
+
+
 def configure_linear_solver(ksp: PETSc.KSP) -> None:
     """Default: direct Cholesky with MUMPS; any -ksp_/-pc_ option overrides it."""
     ksp.setType(PETSc.KSP.Type.PREONLY)
     pc = ksp.getPC()
     pc.setType(PETSc.PC.Type.CHOLESKY)
     pc.setFactorSolverType("mumps")
+
+
+def check_factorization(ksp: PETSc.KSP, matrix: PETSc.Mat) -> None:
+    """Fail now, not at the first solve, if the chosen factorization package does not exist.
+
+    PETSc looks the package (-pc_factor_mat_solver_type) up only when the preconditioner
+    is set up, at the first solve.  A 2-row-per-rank matrix of ``matrix``'s type factored
+    with the same preconditioner and package raises the same PETSc error right away, for
+    the cost of nothing.  Call after setFromOptions.  Collective.
+    """
+    pc = ksp.getPC()
+    if pc.getType() not in FACTORIZATIONS:
+        return
+    probe = PETSc.Mat().create(matrix.getComm())
+    probe.setSizes(((2, None), (2, None)), bsize=2)
+    probe.setType(matrix.getType())
+    probe.setPreallocationNNZ(1)
+    start, stop = probe.getOwnershipRange()
+    for row in range(start, stop):
+        probe.setValue(row, row, 1.0)
+    probe.assemble()
+    probe.setOption(PETSc.Mat.Option.SPD, True)
+    trial = PETSc.KSP().create(matrix.getComm())
+    trial.setOperators(probe)
+    trial.setType(PETSc.KSP.Type.PREONLY)
+    trial.getPC().setType(pc.getType())
+    package = pc.getFactorSolverType()
+    if package:
+        trial.getPC().setFactorSolverType(package)
+    try:
+        trial.setUp()
+    finally:
+        trial.destroy()
+        probe.destroy()
 
 
 class LinearStepSolver:
@@ -51,6 +88,7 @@ class LinearStepSolver:
         self.ksp.setOperators(a_const)
         configure_linear_solver(self.ksp)
         self.ksp.setFromOptions()
+        check_factorization(self.ksp, a_const)
         self.factorizations = 0
         self.jacobian_builds = 0
 
@@ -75,6 +113,8 @@ class ContactStepSolver:
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
         self.b = a_const.createVecRight()
         self.smooth = a_const.createVecRight()  # A u - b at the last residual evaluation
+        # work vectors of the line search and the energy, allocated once
+        self._direction, self._product, self._trial = (a_const.createVecRight() for _ in range(3))
         self.factorizations = 0
         self.jacobian_builds = 0
         self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
@@ -90,21 +130,28 @@ class ContactStepSolver:
         snes.setType(PETSc.SNES.Type.NEWTONLS)
         snes.setFunction(self._residual, self.a_const.createVecRight())
         snes.setJacobian(self._jacobian_callback, self.jacobian)
-        # petsc4py 3.18 has no SNES.getLineSearch: default through the options database
-        options = PETSc.Options()
-        if not options.hasName("snes_linesearch_type"):
-            options.setValue("snes_linesearch_type", "basic")
         snes.setLineSearchPreCheck(self._exact_line_search)
         snes.setConvergenceTest(self._converged)
         snes.setTolerances(rtol=1e-12, atol=1e-50, stol=1e-13, max_it=200)
         configure_linear_solver(snes.getKSP())
-        snes.setFromOptions()
+        # petsc4py 3.18 has no SNES.getLineSearch: the default goes through the options
+        # database, only while setFromOptions reads it (no leak into later runs)
+        options = PETSc.Options()
+        default_line_search = not options.hasName("snes_linesearch_type")
+        if default_line_search:
+            options.setValue("snes_linesearch_type", "basic")
+        try:
+            snes.setFromOptions()
+        finally:
+            if default_line_search:
+                options.delValue("snes_linesearch_type")
+        check_factorization(snes.getKSP(), self.jacobian)
         return snes
 
     # -- J_n, its gradient and Jacobian ------------------------------------------
     def energy(self, u: PETSc.Vec) -> float:
         """J_n(u) up to a constant.  Collective."""
-        au = self.a_const.createVecLeft()
+        au = self._product
         self.a_const.mult(u, au)
         quadratic = 0.5 * au.dot(u) - self.b.dot(u)
         return quadratic + self.law.energy(*self.law.kinematics(u))
@@ -136,14 +183,16 @@ class ContactStepSolver:
         If every Gamma_C point is on the same linear piece at x and at x - y, J_n is one
         quadratic on the whole segment and the full Newton step is its exact minimizer.
         """
-        direction = -y
+        direction = self._direction
+        y.copy(direction)
+        direction.scale(-1.0)
         un, ut = self.law.kinematics(x)
         dn, dt = self.law.kinematics(direction)
         same_piece = np.array_equal(self.law.piece(un, ut), self.law.piece(un + dn, ut + dt))
         self._exact_piece = self.comm.allreduce(not same_piece) == 0
         before = self.energy(x) if self.record_energy else 0.0
         if not self._exact_piece:
-            ad = self.a_const.createVecLeft()
+            ad = self._product
             self.a_const.mult(direction, ad)
             curvature = ad.dot(direction)  # d^T A d
             start_slope = self.smooth.dot(direction)  # d^T (A x - b)
@@ -154,7 +203,8 @@ class ContactStepSolver:
 
             y.scale(_minimize_monotone(derivative))
         if self.record_energy:
-            trial = x.copy()
+            trial = self._trial
+            x.copy(trial)
             trial.axpy(-1.0, y)
             self.line_search_log.append((before, self.energy(trial)))
         return not self._exact_piece

@@ -17,7 +17,7 @@ import numpy as np
 
 from parefg.budget import check_problem_size
 from parefg.errors import InputError
-from parefg.run import choose_output_dir, run_scene
+from parefg.run import create_output_dir, plan_output_dir, remove_empty_dirs, run_scene
 from parefg.scene import load_scene
 
 RATE_KEYS = {"discretization.h": "h", "time.dt": "dt"}
@@ -32,6 +32,9 @@ def parse_axes(vary: list[str]) -> list[tuple[str, list[str]]]:
             raise InputError(f"--vary {item!r}: expected section.key=v1,v2,...")
         axes.append((key.strip(), [v.strip() for v in values.split(",") if v.strip()]))
     return axes
+
+
+SWEEP_OUTPUT = "output.every=0"  # not the default time series: sweeps time the solver
 
 
 def run_sweep(
@@ -50,10 +53,30 @@ def run_sweep(
     axes = parse_axes(vary)
     cases = list(itertools.product(*[values for _, values in axes]))
     # validate every case before running any (bad input: exit 2, nothing run)
+    # the timed cases write their final step only (a --set output.every=N still wins)
+    sets = [SWEEP_OUTPUT, *sets]
     scenes = [load_scene(scene_source, [*sets, *_overrides(axes, case)]) for case in cases]
     for scene in scenes:
         check_problem_size(comm, scene, max_memory)
-    out_dir = choose_output_dir(comm, f"sweep-{scenes[0].name}", out)
+    out_dir = plan_output_dir(comm, f"sweep-{scenes[0].name}", out)
+    created = create_output_dir(comm, out_dir, out)
+    try:
+        rows = _run_cases(comm, axes, cases, scenes, out_dir, max_memory)
+    except InputError:
+        # bad input found by the first case (a PETSc option, the mesh): leave nothing behind
+        if comm.rank == 0:
+            remove_empty_dirs(created)
+        raise
+    if comm.rank == 0:
+        write_csv(out_dir / "sweep.csv", rows)
+        _plot(out_dir / "error_vs_time.png", rows)
+        print(rate_table(rows, [key for key, _ in axes]))
+        print(f"sweep: {out_dir}/sweep.csv, error_vs_time.png")
+    return rows
+
+
+def _run_cases(comm, axes, cases, scenes, out_dir: Path, max_memory) -> list[dict]:
+    """Run the validated cases one after the other into out_dir/caseNNN.  Collective."""
     rows = []
     for i, (case, scene) in enumerate(zip(cases, scenes, strict=True)):
         case_dir = str(out_dir / f"case{i:03d}")
@@ -62,11 +85,6 @@ def run_sweep(
         rows.append(row)
         if comm.rank == 0:
             print(f"  case {i + 1}/{len(cases)}: " + _format_row(row), flush=True)
-    if comm.rank == 0:
-        write_csv(out_dir / "sweep.csv", rows)
-        _plot(out_dir / "error_vs_time.png", rows)
-        print(rate_table(rows, [key for key, _ in axes]))
-        print(f"sweep: {out_dir}/sweep.csv, error_vs_time.png")
     return rows
 
 

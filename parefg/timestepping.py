@@ -1,6 +1,7 @@
 """Time schemes and the time loop (SPEC 4).
 
-Schemes are registered by name in :data:`SCHEMES`.  Each step minimizes
+Schemes are registered by name in :data:`SCHEMES`.  They write into vectors the caller
+owns (the time loop allocates its work vectors once per run).  Each step minimizes
 
     J_n(u) = c_M/2 (u - ut_n)^T M (u - ut_n) + 1/2 u^T K u - F_n . u
            + alpha_D/2 ||u - ubar_n||^2_{Gamma_D} + contact and friction energy,
@@ -26,6 +27,11 @@ class State:
     v: PETSc.Vec
     a: PETSc.Vec
 
+    @classmethod
+    def like(cls, vec: PETSc.Vec) -> State:
+        """Three zero vectors with the layout of ``vec``.  Collective."""
+        return cls(*(vec.duplicate() for _ in range(3)))
+
 
 class NewmarkScheme:
     """Newmark(beta, gamma): predictor ut, vt; a = (u - ut)/(beta k^2), v = vt + gamma k a."""
@@ -40,22 +46,23 @@ class NewmarkScheme:
     def mass_coefficient(self) -> float:
         return 1.0 / (self.beta * self.k**2)
 
-    def predict(self, state: State) -> tuple[PETSc.Vec, PETSc.Vec]:
+    def predict(self, state: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
+        """ut, vt (overwritten) from the previous level ``state``."""
         k, beta, gamma = self.k, self.beta, self.gamma
-        ut = state.u.copy()
+        state.u.copy(ut)
         ut.axpy(k, state.v)
         ut.axpy(k * k * (0.5 - beta), state.a)
-        vt = state.v.copy()
+        state.v.copy(vt)
         vt.axpy(k * (1.0 - gamma), state.a)
-        return ut, vt
 
-    def update(self, state: State, u: PETSc.Vec, ut: PETSc.Vec, vt: PETSc.Vec) -> State:
-        a = u.copy()
+    def update(self, state: State, new: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
+        """new.v, new.a (overwritten) from the solved new.u and the predictors."""
+        a, v = new.a, new.v
+        new.u.copy(a)
         a.axpy(-1.0, ut)
         a.scale(self.mass_coefficient)
-        v = vt.copy()
+        vt.copy(v)
         v.axpy(self.gamma * self.k, a)
-        return State(u=u, v=v, a=a)
 
 
 class StaticScheme:
@@ -68,14 +75,15 @@ class StaticScheme:
     def __init__(self, scene):
         self.k = scene.dt
 
-    def predict(self, state: State) -> tuple[PETSc.Vec, PETSc.Vec]:
-        return state.u.copy(), state.v.copy()
+    def predict(self, state: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
+        state.u.copy(ut)
+        state.v.copy(vt)
 
-    def update(self, state: State, u: PETSc.Vec, ut: PETSc.Vec, vt: PETSc.Vec) -> State:
-        v = u.copy()
-        v.axpy(-1.0, state.u)
-        v.scale(1.0 / self.k)
-        return State(u=u, v=v, a=state.a.copy())
+    def update(self, state: State, new: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
+        new.u.copy(new.v)
+        new.v.axpy(-1.0, state.u)
+        new.v.scale(1.0 / self.k)
+        state.a.copy(new.a)
 
 
 SCHEMES = {scheme.name: scheme for scheme in (NewmarkScheme, StaticScheme)}

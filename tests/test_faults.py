@@ -108,8 +108,8 @@ def test_killed_rank_ends_job_and_output_stays_readable(tmp_path, job_cleanup):
         times = h5["steps/time"][:]
         n_nodes = h5["mesh/coordinates"].shape[0]
         print(f"[faults] result.h5 readable: {len(steps)} output steps, last step {steps[-1]}")
-        # every output step from the first one on, none missing, at t = n dt
-        expected = OUTPUT_EVERY * np.arange(1, len(steps) + 1)
+        # t = 0 and every output step from the first one on, none missing, at t = n dt
+        expected = OUTPUT_EVERY * np.arange(len(steps))
         np.testing.assert_array_equal(steps, expected)
         np.testing.assert_allclose(times, 0.005 * expected, rtol=1e-12)
         assert len(steps) >= 2

@@ -5,6 +5,7 @@ hand or by the shoelace formula on the vertex list), never from parefg.
 """
 
 import hashlib
+import os
 from pathlib import Path
 
 import numpy as np
@@ -299,3 +300,14 @@ def test_degenerate_cell_is_an_input_error():
         orient_counter_clockwise(coords, np.array([[0, 1, 2]]))
     flipped = orient_counter_clockwise(coords, np.array([[0, 3, 1], [0, 1, 3]]))
     np.testing.assert_array_equal(flipped, [[1, 3, 0], [0, 1, 3]])
+
+
+def test_meshing_writes_nothing_into_home(tmp_path_factory, monkeypatch):
+    """gmsh's FLTK layer writes ~/.fltk/fltk.org/fltk.prefs at start-up: meshing runs with a
+    private HOME, so the user's home (here a fresh directory) stays empty and HOME is
+    restored afterwards."""
+    home = tmp_path_factory.mktemp("home")
+    monkeypatch.setenv("HOME", str(home))
+    build_node_cloud(MPI.COMM_WORLD, {"shape": "square"}, 0.5)
+    assert list(home.iterdir()) == []
+    assert os.environ["HOME"] == str(home)

@@ -79,7 +79,7 @@ def one_error_line(done, code):
      ('"exp(1000 * (1 + x))"', "'exp(1000 * (1 + x))' is not finite (inf)")],
 )  # fmt: skip
 def test_non_finite_load_names_datum_and_point(tmp_path, force, shown, ranks):
-    """sqrt(x - 2) is NaN on the whole unit square, exp(1000 (1 + x)) overflows: exit 2, no warnings.
+    """sqrt(x - 2) is NaN on the unit square, exp(1000 (1 + x)) overflows: exit 2, no warning.
 
     (A constant such as exp(1000) is refused earlier, when the scene is parsed.)
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from mpi4py import MPI
 
 from parefg.errors import InputError
 from parefg.output import ResultWriter, _PointRows
@@ -277,3 +278,38 @@ def test_plot_run_makes_its_pngs(comm, tmp_path):
     assert produced == expected
     for name in expected:
         assert (run_dir / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def bytes_written() -> int:
+    """Bytes this process has handed to write calls so far (Linux /proc/self/io wchar)."""
+    with open("/proc/self/io") as io:
+        return next(int(line.split()[1]) for line in io if line.startswith("wchar"))
+
+
+@pytest.mark.skipif(not Path("/proc/self/io").exists(), reason="needs Linux /proc/self/io")
+def test_cost_of_an_output_does_not_grow_with_the_outputs_before(tmp_path):
+    """Bytes written per write_step, outputs 300..350 against 10..60 (XDMF and HDF5).
+
+    Rewriting the XDMF index at every output made the k-th output write O(k) bytes
+    (quadratic in all; 500 outputs took 18.8 s); appending keeps it flat.  Each rank
+    writes its own file (COMM_SELF): the count is of this process's writes.
+    """
+    comm, run_dir = MPI.COMM_SELF, tmp_path / "run"
+    node_coords, contact_coords, steps = synthetic_run(1)
+    writer, node_rows, contact_rows = make_writer(comm, run_dir, node_coords, contact_coords)
+    node_fields, contact_fields = steps[0]
+    node_fields = {name: values[node_rows] for name, values in node_fields.items()}
+    contact_fields = {name: values[contact_rows] for name, values in contact_fields.items()}
+    per_output = []
+    try:
+        for k in range(350):
+            before = bytes_written()
+            writer.write_step(k, 0.125 * k, node_fields, contact_fields)
+            per_output.append(bytes_written() - before)
+    finally:
+        writer.close({})
+    early, late = np.mean(per_output[10:60]), np.mean(per_output[300:350])
+    assert late < 1.5 * early, (early, late)
+    assert writer.xdmf_bytes_written < 350 * 4096  # one snapshot and the closing tags each
+    check_xdmf_steps = ET.parse(run_dir / "result.xdmf").getroot().find("Domain/Grid")
+    assert len(check_xdmf_steps.findall("Grid")) == 350

@@ -54,7 +54,7 @@ def test_one_and_two_ranks_write_the_same_datasets(tmp_path, scene):
     assert serial.keys() == parallel.keys()
     assert any(name.startswith("fields/displacement/") for name in serial)
     assert any(name.startswith("contact_fields/status/") for name in serial)
-    assert len(serial["steps/time"]) == 4  # steps 3, 6, 9 and the final step 10
+    assert len(serial["steps/time"]) == 5  # t = 0, steps 3, 6, 9 and the final step 10
     # The gap -u_nu is ~1e-6 (penalty-limited penetration) but computed from u_h ~ 1e-1, so
     # its round-off scale is that of the displacement; the pressure is alpha_C times the gap.
     displacement = max(np.abs(v).max() for n, v in serial.items() if "displacement" in n)

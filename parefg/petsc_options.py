@@ -1,0 +1,184 @@
+"""PETSc options as input: the scene's [solver] table, bad values, options nobody used.
+
+PETSc is parefg's solver configuration language (SPEC 4): options come from the command
+line (handed to ``petsc4py.init``) and from the scene's ``[solver]`` table.  This module
+
+* puts the scene's options into the global database for the duration of one run, under
+  the command line's (a command-line option of the same name wins), and takes them out
+  afterwards, so a second run in the same process does not inherit them;
+* turns a ``PETSc.Error`` raised while the solvers are configured (an unknown
+  ``-ksp_type``, ``-pc_factor_mat_solver_type nope``) into an :class:`InputError` that
+  names the option;
+* lists the options no PETSc object (and no parefg code) ever queried -- typically a
+  misspelling such as ``-ksp_tpye`` -- through PETSc's own bookkeeping
+  (``PetscOptionsLeftGet``, which petsc4py 3.18 does not wrap; reached with ctypes).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import time
+from contextlib import contextmanager
+
+from petsc4py import PETSc
+
+from parefg.errors import InputError, SolverError
+
+# Options PETSc reads only in PetscFinalize, after any check a run can make.
+_READ_AT_FINALIZE = {
+    "options_left",
+    "options_view",
+    "malloc_dump",
+    "malloc_view",
+    "memory_view",
+    "objects_dump",
+}
+# PETSc error codes that are the numerics failing, not the configuration being wrong.
+_SOLVER_FAILURES = {71: "zero pivot in LU", 77: "not converged", 81: "zero pivot in Cholesky"}
+_OUT_OF_MEMORY = 55
+# seconds a rank that failed waits for the others to leave the block before it aborts the
+# job: a rank stuck in a collective the failed rank left would otherwise wait forever
+AGREEMENT_TIMEOUT = 60.0
+
+
+@contextmanager
+def scene_options(solver_options: dict[str, str]):
+    """Insert the scene's [solver] options for the duration of the block.
+
+    Options already in the database (the command line's) are left alone, so the command
+    line wins; exactly the inserted names are deleted on exit, whatever happens.
+    Yields the names inserted.  Not collective (every rank does the same).
+    """
+    options = PETSc.Options()
+    inserted = [name for name in solver_options if not options.hasName(name)]
+    for name in inserted:
+        options.setValue(name, solver_options[name])
+    try:
+        yield inserted
+    finally:
+        for name in inserted:
+            options.delValue(name)
+
+
+def _library():
+    """libpetsc as petsc4py loaded it (found in the process's mappings), or None."""
+    loaded = []
+    try:
+        with open("/proc/self/maps") as maps:
+            loaded = [line.split()[-1] for line in maps if "/libpetsc" in line]
+    except OSError:
+        pass
+    fallbacks = [ctypes.util.find_library(name) for name in ("petsc_real", "petsc")]
+    for name in [*dict.fromkeys(loaded), *filter(None, fallbacks)]:
+        try:
+            library = ctypes.CDLL(name)
+        except OSError:
+            continue
+        if hasattr(library, "PetscOptionsLeftGet"):
+            return library
+    return None
+
+
+def _left_on_this_rank() -> set[str] | None:
+    """Names of the options in the global database never queried here; None if unknown."""
+    library = _library()
+    if library is None:
+        return None
+    int_type = ctypes.c_int64 if PETSc.IntType().itemsize == 8 else ctypes.c_int32
+    count = int_type()
+    names = ctypes.POINTER(ctypes.c_char_p)()
+    values = ctypes.POINTER(ctypes.c_char_p)()
+    arguments = (None, ctypes.byref(count), ctypes.byref(names), ctypes.byref(values))
+    if library.PetscOptionsLeftGet(*arguments) != 0:
+        return None
+    left = {names[i].decode() for i in range(count.value)}
+    library.PetscOptionsLeftRestore(*arguments)
+    return left - _READ_AT_FINALIZE
+
+
+def unused_options(comm) -> list[str] | None:
+    """Options no rank used (sorted, without '-'); None where PETSc cannot tell.  Collective."""
+    local = _left_on_this_rank()
+    everywhere = comm.allgather(local)
+    if any(left is None for left in everywhere):
+        return None
+    return sorted(set.intersection(*everywhere))
+
+
+def unused_options_warning(comm, scene_names: list[str]) -> str | None:
+    """The one-line warning about options nobody used, or None.  Collective.
+
+    ``scene_names`` are the options that came from the scene's [solver] table; they are
+    named ``solver.NAME``, the others ``-NAME``.
+    """
+    unused = unused_options(comm)
+    if not unused:
+        return None
+    shown = [f"solver.{name}" if name in scene_names else f"-{name}" for name in unused]
+    return (
+        "parefg: warning: PETSc option(s) never used (misspelled, or not for this scene?): "
+        + ", ".join(shown)
+    )
+
+
+def _options_named_in(text: str, scene: dict[str, str]) -> list[str]:
+    """Database options whose value is a word of ``text`` (PETSc's message names the value).
+
+    An option with the value the scene's [solver] table gave it is shown as ``solver.NAME``.
+    """
+    words = set(text.replace(",", " ").replace(".", " ").split())
+    found = []
+    for name, value in PETSc.Options().getAll().items():
+        if isinstance(value, str) and value in words:
+            from_scene = scene.get(name) == value
+            found.append(f"solver.{name} = {value!r}" if from_scene else f"-{name} {value}")
+    return found
+
+
+def describe_petsc_error(error: PETSc.Error, what: str, scene: dict[str, str]) -> str:
+    """One line: what PETSc refused, naming the option whose value it could not use."""
+    lines = [line.strip() for line in getattr(error, "_traceback_", []) if line.strip()]
+    detail = lines[-1] if lines else f"PETSc error code {error.ierr}"
+    named = _options_named_in(detail, scene)
+    culprit = f"PETSc option {' / '.join(named)}: " if named else "PETSc options: "
+    return f"{culprit}rejected while setting up {what} ({detail})"
+
+
+@contextmanager
+def petsc_configuration(comm, what: str, scene: dict[str, str]):
+    """Run a block that configures PETSc objects; a PETSc error becomes InputError.  Collective.
+
+    ``what`` says what is set up; ``scene`` is the scene's [solver] table (to name an
+    option as the scene spelled it).
+
+    Every rank leaves the block, then the ranks agree (one allgather): if any rank failed,
+    every rank raises the first failing rank's message, so no rank is left behind.  An
+    out-of-memory error is re-raised as it is; a zero pivot or non-convergence is a
+    :class:`SolverError`.
+    """
+    failure = None
+    try:
+        yield
+    except PETSc.Error as error:
+        if error.ierr == _OUT_OF_MEMORY:
+            raise
+        kind = "solver" if error.ierr in _SOLVER_FAILURES else "input"
+        failure = (kind, describe_petsc_error(error, what, scene))
+    _meet(comm, patience=None if failure is None else AGREEMENT_TIMEOUT)
+    failures = [f for f in comm.allgather(failure) if f is not None]
+    if failures:
+        kind, message = failures[0]
+        raise (SolverError if kind == "solver" else InputError)(message)
+
+
+def _meet(comm, patience: float | None) -> None:
+    """Wait until every rank arrives; abort the job after ``patience`` seconds.  Collective."""
+    if comm.size == 1:
+        return
+    request = comm.Ibarrier()
+    deadline = None if patience is None else time.monotonic() + patience
+    while not request.Test():
+        if deadline is not None and time.monotonic() > deadline:
+            comm.Abort(2)
+        time.sleep(0.001)
