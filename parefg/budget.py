@@ -41,6 +41,10 @@ MEMORY_FRACTION = 0.8
 MAX_INDEX = 2**31 - 1
 # The node-cloud check refuses only beyond this factor of the limit (estimates differ ~10 %).
 CLOUD_SLACK = 1.25
+# Budget.size_floor searches element sizes in [FLOOR_RANGE h, h] (gmsh's own tolerance on
+# sizes is about 1e-12 of the model); 60 halvings of that log range are exact to round-off.
+FLOOR_RANGE = 1e-9
+FLOOR_BISECTIONS = 60
 
 # Unstructured gmsh meshes at target size h (measured on polygons, z and .geo domains):
 # N = 1.16 A / h^2 + 0.5 P / h (1.16 ~ 2 / sqrt 3: equilateral triangles).
@@ -177,9 +181,12 @@ def grid_size(scene, lx: float, ly: float) -> Size:
     return _size(scene, n_nodes, n_cells, 2 * (n_x + n_y), kappa, alpha)
 
 
-def unstructured_size(scene, area: float, perimeter: float) -> Size:
-    """Size of gmsh's Frontal-Delaunay mesh (recombined for quads) of a domain A, P at h."""
-    h = scene.h
+def unstructured_size(scene, area: float, perimeter: float, h: float | None = None) -> Size:
+    """Size of gmsh's Frontal-Delaunay mesh (recombined for quads) of a domain A, P at h.
+
+    ``h`` defaults to the scene's (another size: :meth:`Budget.size_floor`).
+    """
+    h = scene.h if h is None else h
     boundary_nodes = perimeter / h
     n_nodes = UNSTRUCTURED_DENSITY * area / h / h + 0.5 * boundary_nodes + 3
     # Euler: 2 N - B - 2 triangles with B boundary nodes; about half as many quads
@@ -385,6 +392,33 @@ class Budget:
         message = self.refusal(unstructured_size(self.scene, area, perimeter))
         if message is not None:
             raise InputError(message)
+
+    def size_floor(self, area: float, perimeter: float) -> float:
+        """The smallest element size at which a domain of this extent still fits (<= h).
+
+        gmsh clamps every element size it computes (point sizes, MeshSize, fields,
+        curvature) to [Mesh.MeshSizeMin, Mesh.MeshSizeMax]; with this floor as
+        MeshSizeMin, a .geo file whose sizes ask for less (``MeshSize{...} = 1e-9``, a
+        Threshold field's SizeMin) gets a mesh no finer than a bounding box filled at
+        the floor, which the budget holds, instead of exhausting the machine inside
+        gmsh.  Legitimate refinement is untouched while the budget allows it.  Found by
+        bisection on log h (the estimate only grows as h shrinks).  Not collective.
+        """
+        h = self.scene.h
+
+        def fits(size_h: float) -> bool:
+            size = unstructured_size(self.scene, area, perimeter, size_h)
+            return self.refusal(size) is None
+
+        fine, coarse = h * FLOOR_RANGE, h
+        if fits(fine):
+            return fine
+        if not fits(coarse):
+            return h
+        for _ in range(FLOOR_BISECTIONS):
+            middle = math.sqrt(fine * coarse)
+            fine, coarse = (fine, middle) if fits(middle) else (middle, coarse)
+        return coarse
 
     def check_cloud(self, comm, cloud) -> None:
         """Refuse the run once the node cloud exists, before any MLS work.  Collective.

@@ -194,7 +194,8 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> Nod
 
     gmsh never reads stdin here (:func:`_gmsh_initialize`, :func:`_stdin_closed`).  With a
     ``budget`` (:class:`parefg.budget.Budget`), a .geo domain whose surfaces' bounding boxes
-    (an upper bound of its area) need more than the budget is refused before meshing.
+    (an upper bound of its area) need more than the budget is refused before meshing, and
+    gmsh meshes it no finer than the budget holds (Mesh.MeshSizeMin, :meth:`Budget.size_floor`).
     """
     shape = domain.get("shape")
     if shape not in DOMAIN_BUILDERS:
@@ -214,7 +215,11 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> Nod
         built = DOMAIN_BUILDERS[shape](gmsh, domain, h, cells)
         _set_mesh_options(gmsh, h, cells, recombine=cells == "quad" and built.lattice is None)
         if budget is not None and shape == "geo":
-            budget.check_extent(*_surfaces_extent(gmsh, built.surfaces))
+            extent = _surfaces_extent(gmsh, built.surfaces)
+            budget.check_extent(*extent)
+            # A .geo file's own sizes (points, MeshSize, fields) may ask for any
+            # refinement: gmsh clamps them all to this floor (Budget.size_floor).
+            gmsh.option.setNumber("Mesh.MeshSizeMin", budget.size_floor(*extent))
         gmsh.model.mesh.generate(2)
         cloud = _extract_cloud(gmsh, built, cells)
     except InputError:
@@ -473,7 +478,7 @@ def _build_from_geo(gmsh, domain: dict, h: float, cells: str):
     """
     path = str(domain.get("file", ""))
     try:
-        text = load_geo(path)
+        text = load_geo(path, mesh_size_max=h)
     except InputError as exc:
         raise InputError(f"domain.file {path!r}: {exc}") from None
     with tempfile.TemporaryDirectory(prefix="parefg-geo-") as private:

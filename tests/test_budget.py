@@ -349,12 +349,14 @@ def test_node_cloud_beyond_its_estimate_is_refused_before_mls(tmp_path_factory):
     budget.check_extent(1.0, 4.0)  # the bounding box fits
     with pytest.raises(InputError, match=f"meshed with about {cloud.n_nodes} nodes"):
         budget.check_cloud(COMM, cloud)
-    # and the whole chain, as the CLI runs it: gmsh, then the cloud check
-    from parefg.operators import build_discretization
-
-    with pytest.raises(InputError, match="meshed with"):
-        build_discretization(COMM, scene, budget)
     assert limit / GB < 1  # a modest budget: nothing large was built
+    # Meshed under that budget, gmsh clamps the cluster's h/4 to the budget's size floor:
+    # fewer nodes, and the cloud fits (Budget.size_floor).
+    floor = budget.size_floor(1.0, 4.0)
+    assert scene.h / 4 < floor < scene.h
+    coarser = build_node_cloud(COMM, scene.domain, scene.h, scene.cells, budget=budget)
+    assert coarser.n_nodes < cloud.n_nodes
+    budget.check_cloud(COMM, coarser)
 
 
 def test_matrix_beyond_32_bit_indices_is_refused_whatever_the_memory():
@@ -362,3 +364,165 @@ def test_matrix_beyond_32_bit_indices_is_refused_whatever_the_memory():
     scene = load_scene("z", ["discretization.h=1e-4"])
     with pytest.raises(InputError, match="matrix entries per rank.*more ranks"):
         check_problem_size(COMM, scene, max_memory=1e9)
+
+
+# --------------------------------------------------------------------------- .geo sizes
+
+UNIT_SQUARE_GEO = """SetFactory("Built-in");
+Point(1) = {0, 0, 0%s};
+Point(2) = {1, 0, 0%s};
+Point(3) = {1, 1, 0};
+Point(4) = {0, 1, 0};
+Line(1) = {1, 2};
+Line(2) = {2, 3};
+Line(3) = {3, 4};
+Line(4) = {4, 1};
+Curve Loop(1) = {1, 2, 3, 4};
+Plane Surface(1) = {1};
+Physical Curve("bottom") = {1};
+Physical Curve("right") = {2};
+Physical Curve("top") = {3};
+Physical Curve("left") = {4};
+"""
+# .geo sizes far below h: on main, gmsh meshes at 1e-9 and aborts (std::bad_alloc) or
+# exhausts the machine inside gmsh.model.mesh.generate
+TINY_SIZES = {
+    "MeshSize": ("", "MeshSize{1, 2} = 1e-9;"),
+    "Characteristic Length": ("", "Characteristic Length{:} = 1e-9;"),
+    "point size": (", 1e-9", ""),
+    "Threshold": (
+        "",
+        "Field[1] = Distance; Field[1].PointsList = {1}; Field[2] = Threshold;"
+        " Field[2].InField = 1; Field[2].SizeMin = 1e-9; Field[2].SizeMax = 0.1;"
+        " Field[2].DistMin = 0.1; Field[2].DistMax = 0.5; Background Field = 2;",
+    ),
+    "MathEval": ("", 'Field[1] = MathEval; Field[1].F = "1e-9"; Background Field = 1;'),
+    "Box": (
+        "",
+        "Field[1] = Box; Field[1].VIn = 1e-9; Field[1].VOut = 0.1; Field[1].XMax = 1;"
+        " Field[1].YMax = 1; Field[1].ZMin = -1; Field[1].ZMax = 1; Background Field = 1;",
+    ),
+}
+SQUARE_PARTS = ["bottom", "right", "top", "left"]
+
+MESH_UNDER_BUDGET = """
+import sys
+from parefg.budget import Budget, GB
+from parefg.geometry import mesh_domain
+from parefg.scene import load_scene
+
+scene = load_scene("square", sys.argv[1:])
+budget = Budget(scene, 0.5 * GB, host_ranks=1, n_ranks=1, given=True)
+print(mesh_domain(scene.domain, scene.h, scene.cells, budget).n_nodes)
+"""
+
+
+def write_geo(path: Path, point_size: str, extra: str) -> Path:
+    path.write_text(UNIT_SQUARE_GEO % (point_size, point_size) + extra + "\n")
+    return path
+
+
+@pytest.mark.serial_only
+@pytest.mark.parametrize("variant", sorted(TINY_SIZES))
+def test_tiny_geo_sizes_mesh_within_the_budget(tmp_path, variant):
+    """gmsh clamps every size to the budget's floor: the mesh stays at what the budget holds.
+
+    The child meshes under a 4 GB address-space limit with a 0.5 GB budget; on the old code
+    it died inside gmsh (std::bad_alloc, exit 134) or ran for minutes.
+    """
+    geo = write_geo(tmp_path / "tiny.geo", *TINY_SIZES[variant])
+    overrides = [*geo_domain(geo, SQUARE_PARTS), "discretization.h=0.1"]
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (ADDRESS_SPACE, ADDRESS_SPACE))
+
+    start = time.perf_counter()
+    result = subprocess.run(
+        [sys.executable, "-c", MESH_UNDER_BUDGET, *overrides],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=limit,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    n_nodes = int(result.stdout)
+    scene = load_scene("square", overrides)
+    floor = Budget(scene, 0.5 * GB, host_ranks=1, n_ranks=1, given=True).size_floor(1.0, 4.0)
+    at_floor = unstructured_size(scene, 1.0, 4.0, floor).n_nodes
+    # no finer than the floor everywhere (the box at the floor holds the budget)
+    assert 0.1**-2 < n_nodes <= CLOUD_SLACK * at_floor, (n_nodes, at_floor)
+    assert time.perf_counter() - start < 60
+
+
+@pytest.mark.serial_only
+def test_tiny_geo_size_run_stays_in_budget_from_the_cli(tmp_path):
+    """The whole run: meshed at the floor, the cloud fits, the run finishes (exit 0)."""
+    geo = write_geo(tmp_path / "tiny.geo", *TINY_SIZES["MeshSize"])
+    sets = [f"--set={item}" for item in [*geo_domain(geo, SQUARE_PARTS), "discretization.h=0.1"]]
+    out = tmp_path / "out"
+    args = ["run", "square", *sets, "--set=time.T=0.05", "--max-memory=0.6", "--quiet"]
+    result, seconds = run_cli([*args, "--out", str(out)])
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert 100 < summary["n_nodes"] and summary["peak_rss_mb"] < 600, summary
+
+
+@pytest.mark.parametrize(
+    "source, name, parts, extent",
+    [
+        ("square", "clustered.geo", SQUARE_PARTS, (1.0, 4.0)),
+        ("z", "plate_with_hole.geo", ["bottom", "top", "sides"], (2.0, 6.0)),
+    ],
+)
+def test_size_floor_leaves_legitimate_refinement_alone(source, name, parts, extent):
+    """With a budget that holds the box at the file's finest size, the floor changes nothing.
+
+    clustered.geo refines to h/4 near a point: meshed under an 8 GB budget (floor < h/4)
+    and without any, gmsh makes the very same mesh.
+    """
+    scene = load_scene(source, [*geo_domain(REPO / "meshes" / name, parts), "discretization.h=0.1"])
+    budget = Budget(scene, 8 * GB, host_ranks=1, n_ranks=1, given=True)
+    assert budget.size_floor(*extent) < scene.h / 4
+    if COMM.rank == 0:  # meshing is rank 0's
+        from parefg.geometry import mesh_domain
+
+        bounded = mesh_domain(scene.domain, scene.h, scene.cells, budget)
+        free = mesh_domain(scene.domain, scene.h, scene.cells)
+        assert bounded.n_nodes == free.n_nodes > 100
+        np.testing.assert_array_equal(bounded.coords, free.coords)
+        np.testing.assert_array_equal(bounded.quads, free.quads)
+        np.testing.assert_array_equal(bounded.segments, free.segments)
+
+
+@pytest.mark.serial_only
+@pytest.mark.parametrize(
+    "extra, line, why",
+    [
+        ("Transfinite Curve{1} = 1e12;", 16, "Transfinite Curves would put more than"),
+        ("Transfinite Curve{1} = 1e5;", 16, "Transfinite Curves would put more than"),
+        (
+            "Transfinite Curve{1, 3} = 3e4; Transfinite Curve{2, 4} = 3e4; Transfinite Surface{1};",
+            16,
+            "Transfinite Curves would put more than 20000 nodes",
+        ),
+        (
+            "n = 6000; Transfinite Curve{1, 2, 3, 4} = n; Transfinite Surface{1};",
+            16,
+            "Transfinite Curves would put more than 20000 nodes",
+        ),
+        (
+            "Transfinite Curve{1, 3} = 2000; Transfinite Curve{2, 4} = 10; Transfinite Surface{1};",
+            16,
+            "Transfinite Surfaces of up to 2000 nodes a side may have more than 1000000",
+        ),
+    ],
+)
+def test_transfinite_counts_beyond_the_cap_are_refused(tmp_path, extra, line, why):
+    """Transfinite counts ignore mesh sizes: the checker caps them (gmsh aborted at 1e5)."""
+    geo = write_geo(tmp_path / "transfinite.geo", "", extra)
+    sets = [f"--set={item}" for item in [*geo_domain(geo, SQUARE_PARTS), "discretization.h=0.1"]]
+    result, seconds = run_cli(["run", "square", *sets, "--out", str(tmp_path / "out")])
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert f"line {line}: {why}" in result.stderr
+    assert len(result.stderr.splitlines()) == 1 and seconds < 30
+    assert not (tmp_path / "out").exists()

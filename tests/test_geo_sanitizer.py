@@ -271,7 +271,7 @@ def test_example_meshes_mesh_as_gmsh_meshes_the_original(monkeypatch, name, part
     path = str(REPO / "meshes" / name)
     domain = {"shape": "geo", "file": path, "parts": parts}
     checked = geometry.mesh_domain(domain, 0.1)
-    monkeypatch.setattr(geometry, "load_geo", lambda p: Path(p).read_text())
+    monkeypatch.setattr(geometry, "load_geo", lambda p, **_: Path(p).read_text())
     original = geometry.mesh_domain(domain, 0.1)
     assert checked.n_nodes == original.n_nodes > 50
     np.testing.assert_array_equal(checked.coords, original.coords)
@@ -352,3 +352,57 @@ def test_token_soup_is_accepted_or_refused_and_checking_is_idempotent(words):
     except InputError:
         return
     assert sanitize_geo(checked) == checked
+
+
+# --------------------------------------------------------------------------- transfinite counts
+
+UNIT_SQUARE = (
+    "Point(1) = {0, 0, 0}; Point(2) = {1, 0, 0}; Point(3) = {1, 1, 0}; Point(4) = {0, 1, 0};\n"
+    "Line(1) = {1, 2}; Line(2) = {2, 3}; Line(3) = {3, 4}; Line(4) = {4, 1};\n"
+    "Curve Loop(1) = {1, 2, 3, 4}; Plane Surface(1) = {1};\n"
+)
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "Transfinite Curve{1, 2, 3, 4} = 100 Using Progression 1.1; Transfinite Surface{1};",
+        "Transfinite Curve{1, 3} = 1000; Transfinite Curve{2, 4} = 1000; Transfinite Surface{1};",
+        "n = Ceil(1 / Mesh.MeshSizeMax) + 1; Transfinite Curve{1, 2, 3, 4} = n;",
+    ],
+)
+def test_transfinite_counts_within_the_caps_pass(text):
+    for h in (None, 0.1):
+        assert "Transfinite" in sanitize_geo(UNIT_SQUARE + text, mesh_size_max=h)
+
+
+@pytest.mark.parametrize(
+    "text, h, why",
+    [
+        ("Transfinite Curve{1} = 1e12;", None, "more than 20000 nodes on curves"),
+        ("Transfinite Curve{1} = -1e9;", 0.1, "more than 20000 nodes on curves"),
+        ("For i In {1:4}\nTransfinite Curve{i} = 6000;\nEndFor", None, "more than 20000 nodes"),
+        ("n = 1 / Mesh.MeshSizeMax; Transfinite Curve{1} = n;", 1e-9, "more than 20000 nodes"),
+        ("Transfinite Curve{1} = newp;", 0.1, "count must be known before gmsh runs"),
+        ("Transfinite Curve{:} = 10;", None, "Transfinite Curve{:} cannot be bounded"),
+        ("Transfinite Surface{:};", None, "Transfinite Surface{:} cannot be bounded"),
+        (
+            "Transfinite Surface{1}; Transfinite Curve{1, 2, 3, 4} = 1001;",
+            None,
+            "Surfaces of up to 1001 nodes a side may have more than 1000000 nodes",
+        ),
+    ],
+)
+def test_transfinite_counts_beyond_the_caps_are_refused_with_the_line(text, h, why):
+    """Transfinite nodes ignore every mesh size: a count of 1e12 would exhaust gmsh."""
+    with pytest.raises(InputError, match=r"line [4-6]: .*" + why.replace("{:}", r"\{:\}")):
+        sanitize_geo(UNIT_SQUARE + text, mesh_size_max=h)
+
+
+def test_transfinite_count_from_h_is_checked_once_h_is_known():
+    """Without h (the scene being read) an h-dependent count passes; with h it is bounded."""
+    text = UNIT_SQUARE + "Transfinite Curve{1} = 1 / Mesh.MeshSizeMax;"
+    sanitize_geo(text)
+    sanitize_geo(text, mesh_size_max=0.01)
+    with pytest.raises(InputError, match="line 4: Transfinite Curves would put more than"):
+        sanitize_geo(text, mesh_size_max=1e-6)

@@ -48,15 +48,17 @@ __all__ = [
 MAX_GEO_BYTES = 1_000_000
 
 
-def load_geo(path: str) -> str:
+def load_geo(path: str, mesh_size_max: float | None = None) -> str:
     """The checked text of the .geo file at ``path`` (not collective).
+
+    ``mesh_size_max``: the h gmsh will be given (see :func:`sanitize_geo`).
 
     Raises
     ------
     InputError
         ``cannot read ...`` / ``line N: ...: statement`` (see :func:`sanitize_geo`).
     """
-    return sanitize_geo(read_geo(path))
+    return sanitize_geo(read_geo(path), mesh_size_max)
 
 
 def read_geo(path: str) -> str:
@@ -82,8 +84,12 @@ def read_geo(path: str) -> str:
         raise InputError(f"is not UTF-8 text (byte {exc.start})") from None
 
 
-def sanitize_geo(text: str) -> str:
+def sanitize_geo(text: str, mesh_size_max: float | None = None) -> str:
     """Check .geo text against the geometry subset and return it as gmsh should read it.
+
+    With ``mesh_size_max``, the h that gmsh will read as Mesh.MeshSizeMax, values computed
+    from it are known, and every Transfinite Curve count must be (without it, a count
+    that depends on h is checked later, with h, right before gmsh reads the file).
 
     The result has the same tokens on the same lines, comments removed, one space
     between tokens (:func:`parefg.geo.tokens.render`).
@@ -92,8 +98,9 @@ def sanitize_geo(text: str) -> str:
     ------
     InputError
         ``line N: what is wrong: the statement`` for the first statement outside the
-        subset, an unbounded or too long loop, or a too long list.
+        subset, an unbounded or too long loop, a too long list, or Transfinite counts
+        that may make too many nodes (:mod:`parefg.geo.bounds`).
     """
     tokens = tokenize(text)
-    run_program(StatementParser(tokens).program())
+    run_program(StatementParser(tokens).program(), mesh_size_max)
     return render(tokens)

@@ -6,7 +6,7 @@ decides how much work gmsh will do: the values of numeric variables, the
 iterations of For loops and the lengths of lists.  Values are computed with
 gmsh's own arithmetic (C doubles, ``%`` on ints, ``Round(x) = floor(x + 0.5)``,
 ``Hypot(a, b) = sqrt(a*a + b*b)``); a value that depends on the model (``newp``,
-``Mesh.MeshSizeMax``, a list element) is unknown (None).  Refused, with the line:
+a list element, ``Mesh.MeshSizeMax`` unless h is given) is unknown (None).  Refused, with the line:
 
 - a For loop whose range is unknown, not finite or has step 0; loops running more
   than MAX_LOOP_ITERATIONS iterations in total; a loop body assigning its own loop
@@ -17,6 +17,10 @@ gmsh's own arithmetic (C doubles, ``%`` on ints, ``Round(x) = floor(x + 0.5)``,
   index in ``a[i] = ...``;
 - ``a % b`` unless b is known and its integer part is neither 0 nor -1 (gmsh
   computes ``(int)a % (int)b``, and both crash the process);
+- Transfinite Curve counts unknown once h is (Mesh.MeshSizeMax), or putting more than
+  MAX_TRANSFINITE_CURVE_NODES nodes on the curves in all, and Transfinite Surfaces that
+  may hold more than MAX_TRANSFINITE_SURFACE_NODES (gmsh places transfinite nodes
+  whatever the mesh sizes: a count of 1e9 exhausts the machine inside gmsh);
 - more than MAX_WORK statements executed and list items produced in all (the
   checker itself stays fast on any input).
 
@@ -39,6 +43,14 @@ MAX_LIST_LENGTH = 100_000
 MAX_WORK = 500_000
 BOOLEAN_RESULT_LENGTH = 10_000  # bound on the entity list a boolean operation returns
 INT_LIMIT = 2**31  # gmsh casts to a C int
+# Nodes that Transfinite counts may make in all: gmsh places them whatever the mesh sizes,
+# so Mesh.MeshSizeMin cannot bound them (parefg's budget then judges the node cloud).  On
+# curves: gmsh 4.8 meshes a unit square with 10^4 nodes on one side in ~15 s, and aborts
+# the process (an exception in its OpenMP 2D mesher) with 10^5.  On surfaces (structured
+# grids, cheap for gmsh): 1000 x 1000.
+MAX_TRANSFINITE_CURVE_NODES = 20_000
+MAX_TRANSFINITE_SURFACE_NODES = 1_000_000
+MESH_SIZE_MAX = "Mesh.MeshSizeMax"  # the variable holding h (parefg.geo.expressions)
 
 
 def _hypot(a: float, b: float) -> float:
@@ -104,20 +116,32 @@ class _State:
     loop_names: tuple = ()
 
 
-def run_program(program: list[Node]) -> int:
+def run_program(program: list[Node], mesh_size_max: float | None = None) -> int:
     """Execute the program abstractly; return the number of For iterations gmsh will run.
+
+    ``mesh_size_max`` is the h gmsh will be given as Mesh.MeshSizeMax: with it, every
+    Transfinite Curve count must be known; without it (a scene checked before its h is
+    known) counts that depend on h are left to the check with h.
 
     Raises InputError for the first unbounded or unsafe statement (see the module doc).
     """
-    run = _Run()
-    run.block(program, _State())
+    run = _Run(strict=mesh_size_max is not None)
+    state = _State()
+    if mesh_size_max is not None:
+        state.values[MESH_SIZE_MAX], state.lengths[MESH_SIZE_MAX] = mesh_size_max, 1
+    run.block(program, state)
+    run.check_transfinite_surfaces()
     return run.budget.iterations
 
 
 class _Run:
-    def __init__(self):
+    def __init__(self, strict: bool = False):
         self.budget = _Budget()
         self.node = Node("statement", 0, "")  # the statement being run, for messages
+        self.strict = strict
+        self.curve_nodes = 0.0  # nodes the Transfinite Curves put on curves, in all
+        self.largest_count = 0.0  # the largest Transfinite Curve count
+        self.surfaces: list[tuple[Node, int]] = []  # Transfinite Surface statements, lengths
 
     def error(self, why: str) -> InputError:
         statement = str(self.node.text)
@@ -142,6 +166,49 @@ class _Run:
             self.value(expr, state)
         for items in node.lists:
             self.length(items, state)
+
+    def run_transfinite(self, node: Node, state: _State) -> None:
+        """Bound the nodes gmsh puts on Transfinite curves (any count, whatever the sizes).
+
+        A curve gets |n| nodes, a transfinite surface the product of its opposite sides'
+        counts: at most the largest count squared, checked once all counts are known
+        (:meth:`check_transfinite_surfaces`).
+        """
+        length = self.length(node.lists[0], state)
+        for items in node.lists[1:]:
+            self.length(items, state)
+        values = [self.value(expr, state) for expr in node.exprs]
+        if node.name == "Surface":
+            self.surfaces.append((node, length))
+            return
+        count = values[0]
+        if count is None:
+            if self.strict:
+                raise self.error(
+                    "a Transfinite Curve count must be known before gmsh runs (numbers, "
+                    "Mesh.MeshSizeMax and variables assigned them)"
+                )
+            return
+        count = abs(count)
+        self.largest_count = max(self.largest_count, count)
+        self.curve_nodes += count * length
+        if self.curve_nodes > MAX_TRANSFINITE_CURVE_NODES:
+            raise self.error(
+                f"Transfinite Curves would put more than {MAX_TRANSFINITE_CURVE_NODES} nodes "
+                "on curves in all"
+            )
+
+    def check_transfinite_surfaces(self) -> None:
+        """Refuse Transfinite Surfaces that may hold more than MAX_TRANSFINITE_SURFACE_NODES."""
+        nodes = 0.0
+        for node, length in self.surfaces:
+            self.node = node
+            nodes += length * self.largest_count**2
+            if nodes > MAX_TRANSFINITE_SURFACE_NODES:
+                raise self.error(
+                    f"Transfinite Surfaces of up to {self.largest_count:.0f} nodes a side may "
+                    f"have more than {MAX_TRANSFINITE_SURFACE_NODES} nodes in all"
+                )
 
     def run_assign(self, node: Node, state: _State) -> None:
         """Track the value and the length bound of the assigned variable (Gmsh.y Affectation).

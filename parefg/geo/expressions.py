@@ -13,13 +13,14 @@ so no input can exhaust Python's stack.
 from __future__ import annotations
 
 from parefg.errors import InputError
-from parefg.geo.bounds import FUNCTIONS
+from parefg.geo.bounds import FUNCTIONS, MESH_SIZE_MAX  # a name no .geo variable has
 from parefg.geo.tokens import COMMAND_NAMES, Span, Token, hides_control_word, is_keyword
 
 MAX_NESTING = 40  # parentheses, unary operators and If/For blocks inside each other
 MESH_SIZE_OPTIONS = (
     "MeshSizeMax", "CharacteristicLengthMax", "MeshSizeMin", "CharacteristicLengthMin",
 )  # fmt: skip
+MESH_SIZE_MAX_ALIASES = ("MeshSizeMax", "CharacteristicLengthMax")
 NEW_TAGS = ("newp", "newl", "newc", "newll", "news", "newsl", "newv", "newf", "newreg")
 #: binary operator -> (precedence, right-associative), as declared in Gmsh.y
 BINARY = {
@@ -215,8 +216,9 @@ class ExpressionParser:
             return ("unknown",)
         if name == "Mesh":
             self.expect(".")
-            self.expect(*MESH_SIZE_OPTIONS)
-            return ("unknown",)
+            option = self.expect(*MESH_SIZE_OPTIONS).text
+            # parefg sets Mesh.MeshSizeMax = h before gmsh reads the file: known when h is
+            return ("var", MESH_SIZE_MAX) if option in MESH_SIZE_MAX_ALIASES else ("unknown",)
         if name in FUNCTIONS:
             n_args, _ = FUNCTIONS[name]
             closing = ")" if self.expect("(", "[").text == "(" else "]"

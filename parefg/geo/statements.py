@@ -134,8 +134,16 @@ class StatementParser(ExpressionParser):
         return self.mesh_size(line)
 
     def transfinite(self, line: int) -> Node:
+        """``Transfinite Curve|Line {list} = n [Using ...];`` or ``Transfinite Surface {list}``.
+
+        A "transfinite" node: gmsh puts n nodes on each curve whatever the mesh sizes,
+        so :mod:`parefg.geo.bounds` bounds the counts; ``{:}`` (every entity, a number
+        not known before gmsh runs) is refused.
+        """
         kind = self.expect("Curve", "Line", "Surface").text
-        lists, exprs = [self.list_(allow_all=True)], []
+        if self.is_("{") and self.is_(":", 1):
+            raise self.error(f"Transfinite {kind}{{:}} cannot be bounded: list the entities")
+        lists, exprs = [self.list_()], []
         if kind == "Surface":
             if self.is_("="):
                 self.take()
@@ -150,7 +158,8 @@ class StatementParser(ExpressionParser):
                 self.expect(*TRANSFINITE_TYPES)
                 exprs.append(self.expr())
         self.end()
-        return Node("statement", line, self.text(), exprs=exprs, lists=lists)
+        name = "Surface" if kind == "Surface" else "Curve"
+        return Node("transfinite", line, self.text(), exprs=exprs, lists=lists, name=name)
 
     def recombine(self, line: int) -> Node:
         self.expect("Surface")
