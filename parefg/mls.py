@@ -33,6 +33,8 @@ from parefg import mls_kernels
 from parefg.errors import InputError
 from parefg.weights import get_weight
 
+# Dilations beyond this are advised down, not up, when A(x) is singular with enough neighbours.
+LARGE_SUPPORT = 20.0
 # Moment matrices less well conditioned than this are rejected.
 MAX_CONDITION = 1e12
 # Rejected matrices whose condition estimate exceeds this are reported as singular.  Both
@@ -290,10 +292,18 @@ class MLS:
                 f"badly conditioned (condition number {condition[i]:.0e} > {MAX_CONDITION:.0e})"
             )
         now = "" if self.support_factor is None else f" (now {self.support_factor:g})"
+        advice = f"increase discretization.support{now}"
+        huge = self.support_factor is not None and self.support_factor > LARGE_SUPPORT
+        if huge and counts[i] >= self.n_basis:
+            # Enough neighbours, but the scaled basis p((x_I - x) / r) is ~ (c / r)^m small:
+            # a far larger support only loses digits.
+            advice = (
+                f"decrease discretization.support{now}: supports far wider than the node "
+                "spacing leave A(x) without significant digits (2 to 4 is typical)"
+            )
         raise MLSError(
             f"MLS moment matrix {problem} at point ({x:.6g}, {y:.6g}): {counts[i]} neighbours "
-            f"for {self.n_basis} basis functions (degree {self.degree}); "
-            f"increase discretization.support{now}"
+            f"for {self.n_basis} basis functions (degree {self.degree}); {advice}"
         )
 
     @staticmethod

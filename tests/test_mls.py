@@ -414,3 +414,14 @@ def test_lu_breakdown_in_a_chunk_does_not_change_the_other_points_estimates():
 def test_unknown_backend_is_an_input_error():
     with pytest.raises(InputError, match="backend"):
         MLS(grid_nodes(), 0.2, 1, backend="fortran")
+
+
+def test_a_huge_support_is_advised_down_not_up():
+    """With every node a neighbour, a dilation of 1e6 scales the basis to ~1e-6: A(x) is
+    singular with plenty of neighbours, and the fix is a smaller support, not a larger one."""
+    nodes = grid_nodes()
+    spacing = np.full(len(nodes), 0.1)
+    with pytest.raises(MLSError, match=re.escape("decrease discretization.support (now 1e+06)")):
+        MLS(nodes, 1e6 * spacing, 2, support_factor=1e6).evaluate(nodes[:5])
+    with pytest.raises(MLSError, match="increase discretization.support"):
+        MLS(nodes, 0.5 * spacing, 2, support_factor=0.5).evaluate(nodes[:5] + 0.05)
