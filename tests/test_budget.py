@@ -456,7 +456,12 @@ def test_tiny_geo_sizes_mesh_within_the_budget(tmp_path, variant):
 
 @pytest.mark.serial_only
 def test_tiny_geo_size_run_stays_in_budget_from_the_cli(tmp_path):
-    """The whole run: meshed at the floor, the cloud fits, the run finishes (exit 0)."""
+    """The whole run: meshed at the floor, the cloud fits, the run finishes (exit 0).
+
+    Before, gmsh meshed at 1e-9 and died of std::bad_alloc beyond 4 GB.  Peak RSS is
+    bounded loosely: a process that compiles the numba kernels (a cold cache, as on a
+    fresh machine) peaks near 750 MB whatever the mesh, which the budget does not model.
+    """
     geo = write_geo(tmp_path / "tiny.geo", *TINY_SIZES["MeshSize"])
     sets = [f"--set={item}" for item in [*geo_domain(geo, SQUARE_PARTS), "discretization.h=0.1"]]
     out = tmp_path / "out"
@@ -464,7 +469,11 @@ def test_tiny_geo_size_run_stays_in_budget_from_the_cli(tmp_path):
     result, seconds = run_cli([*args, "--out", str(out)])
     assert result.returncode == 0, result.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
-    assert 100 < summary["n_nodes"] and summary["peak_rss_mb"] < 600, summary
+    scene = load_scene("square", [*geo_domain(geo, SQUARE_PARTS), "discretization.h=0.1"])
+    floor = Budget(scene, 0.6 * GB, host_ranks=1, n_ranks=1, given=True).size_floor(1.0, 4.0)
+    at_floor = unstructured_size(scene, 1.0, 4.0, floor).n_nodes
+    assert 100 < summary["n_nodes"] <= CLOUD_SLACK * at_floor, (summary["n_nodes"], at_floor)
+    assert summary["peak_rss_mb"] < 1500, summary["peak_rss_mb"]
 
 
 @pytest.mark.parametrize(
