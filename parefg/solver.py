@@ -3,7 +3,8 @@
 Two solvers, chosen by what the scene needs:
 
 * :class:`LinearStepSolver` -- no Gamma_C: J_n is quadratic, each step is one linear
-  solve with A_const, factored (or preconditioned) once for the whole run.
+  solve with A_const, factored (or preconditioned) once for the whole run (an iterative
+  KSP that stops above the step tolerance is refined with the same KSP).
 * :class:`ContactStepSolver` -- semismooth Newton with PETSc SNES (``newtonls``).  The
   Jacobian A_const + contact terms depends only on the active set (closed / sticking
   points), so it is rebuilt -- and refactored -- only when the active set changes; while
@@ -14,8 +15,9 @@ search: given the Newton update Y (PETSc steps x <- x - Y), the pre-check replac
 t* Y with t* the exact minimizer of the convex, piecewise-quadratic J_n(x - t Y).  Its
 derivative is monotone and piecewise linear in t; t* is found by Newton's method on the
 current linear piece inside a shrinking bracket (exact after finitely many pieces).  So
-J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, even
-another -snes_linesearch_type) still applies.
+J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, ...)
+still applies; -snes_linesearch_type may be basic (default), bt, cp or nleqerr (see
+:data:`LINE_SEARCHES`).
 
 Convergence (both solvers): the residual F(u) = A u - b + contact forces meets the step
 tolerance ``max(atol, rtol * scale)`` with ``scale = max(|b|, |A_const u_0|)`` -- the forces of

@@ -178,3 +178,11 @@ def test_exactness_is_read_from_the_types_in_use(petsc_options):
     assert not _simulation(SHORT).solver.exact
     petsc_options({"pc_type": "lu", "ksp_type": "gmres"})
     assert not _simulation(SHORT).solver.exact
+
+
+def test_linear_path_refuses_an_answer_above_the_tolerance(petsc_options):
+    """No Gamma_C: one application of Jacobi (preonly) is no solve; refinement does not reduce
+    the residual, so the step fails instead of returning that answer."""
+    petsc_options({"ksp_type": "preonly", "pc_type": "jacobi"})
+    with pytest.raises(SolverError, match="above the step tolerance"):
+        _run(_simulation(NO_CONTACT))
