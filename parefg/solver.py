@@ -205,7 +205,8 @@ class ContactStepSolver:
         self.record_energy = False
         self.residual_norm = self.tolerance = float("nan")  # of the last step
         self._signature = None  # active set the Jacobian was built for
-        self._step_active = None  # active set of the iterate a Newton step started from
+        # active set of the iterate a Newton step started from (set before any step test)
+        self._step_active: np.ndarray = np.zeros(0, dtype=bool)
         self._exact_piece = False
         self._step_norm = 0.0  # |update| the pre-check handed to the line search
         self._failure: str | None = None  # why the running step must fail
