@@ -3,7 +3,8 @@
 Two solvers, chosen by what the scene needs:
 
 * :class:`LinearStepSolver` -- no Gamma_C: J_n is quadratic, each step is one linear
-  solve with A_const, factored (or preconditioned) once for the whole run.
+  solve with A_const, factored (or preconditioned) once for the whole run (an iterative
+  KSP that stops above the step tolerance is refined with the same KSP).
 * :class:`ContactStepSolver` -- semismooth Newton with PETSc SNES (``newtonls``).  The
   Jacobian A_const + contact terms depends only on the active set (closed / sticking
   points), so it is rebuilt -- and refactored -- only when the active set changes; while
@@ -14,13 +15,21 @@ search: given the Newton update Y (PETSc steps x <- x - Y), the pre-check replac
 t* Y with t* the exact minimizer of the convex, piecewise-quadratic J_n(x - t Y).  Its
 derivative is monotone and piecewise linear in t; t* is found by Newton's method on the
 current linear piece inside a shrinking bracket (exact after finitely many pieces).  So
-J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, even
-another -snes_linesearch_type) still applies.
+J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, ...)
+still applies; -snes_linesearch_type may be basic (default), bt, cp or nleqerr (see
+:data:`LINE_SEARCHES`).
 
-Convergence: the full Newton step stayed on one linear piece of the residual (every
-Gamma_C point kept its open/closed and stick/slip-direction status) -- then the step
-solved the affine residual of that piece exactly, whatever alpha does to the residual's
-scale -- or, with a settled active set, the residual meets the SNES tolerances.
+Convergence (both solvers): the residual F(u) = A u - b + contact forces meets the step
+tolerance ``max(atol, rtol * scale)`` with ``scale = max(|b|, |A_const u_0|)`` -- the forces of
+the step without contact, which do not grow with the contact penalty (a tolerance relative
+to |F(u_0)|, dominated by alpha times the predictor's penetration, would) -- and, with
+contact, the active set did not change in the last iteration.  rtol, atol and max_it are
+the SNES tolerances (-snes_rtol, -snes_atol, -snes_max_it; defaults 1e-10, 1e-50, 200).
+Only when the linear solve is exact (KSP ``preonly`` with an LU or Cholesky PC, read after
+setFromOptions) two shortcuts are taken: a full Newton step that stayed on its linear piece
+of the residual solved the step exactly, and an update below stol |u| is at round-off.  A
+Newton direction that is not a descent direction of J_n, where the residual does not meet
+the tolerance, ends the step as a failure.
 """
 
 from __future__ import annotations
@@ -29,7 +38,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from parefg.assembly import add_owned_rows
-from parefg.errors import SolverError
+from parefg.errors import InputError, SolverError
 
 Reason = PETSc.SNES.ConvergedReason
 
@@ -79,8 +88,53 @@ def check_factorization(ksp: PETSc.KSP, matrix: PETSc.Mat) -> None:
         probe.destroy()
 
 
+DEFAULT_TOLERANCES = {"rtol": 1e-10, "atol": 1e-50, "stol": 1e-13, "max_it": 200}
+EXACT_FACTORIZATIONS = ("lu", "cholesky")
+# Measured (square, z, stick, impact): bt, cp and nleqerr give the errors of "basic" to
+# 1e-11.  l2 fits a parabola to |F|^2, which is only piecewise smooth here: on impact it
+# jumps to lambda ~ 2 past a kink at every iteration although lambda = 1 gives |F| ~ 1e-13,
+# and fails at max_it (t = 0.36).  shell has no function; ncglinear belongs to NCG.
+LINE_SEARCHES = ("basic", "bt", "cp", "nleqerr")
+INEXACT_HINT = "inexact linear solve? tighten -ksp_rtol or use the default direct solver"
+
+
+def is_exact(ksp: PETSc.KSP) -> bool:
+    """True when ``ksp`` solves exactly (to round-off): preonly with an LU or Cholesky PC.
+
+    Read from the types in use, so call after setFromOptions.  ILU/ICC, any Krylov method
+    and any other PC are inexact.  Not collective.
+    """
+    return ksp.getType() == PETSc.KSP.Type.PREONLY and ksp.getPC().getType() in (
+        EXACT_FACTORIZATIONS
+    )
+
+
+def step_scale(a_const: PETSc.Mat, b: PETSc.Vec, u0: PETSc.Vec, work: PETSc.Vec) -> float:
+    """max(|b|, |A_const u_0|): the forces of a step without contact.  Collective.
+
+    The step tolerance is rtol times this scale: it does not grow with the contact penalty,
+    unlike |F(u_0)| (alpha times the predictor's penetration), and it is not zero when only
+    the initial guess carries the step (b = 0, u_0 != 0).
+    """
+    a_const.mult(u0, work)
+    return max(b.norm(), work.norm())
+
+
+def _ksp_failure(ksp: PETSc.KSP) -> str:
+    names = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if isinstance(v, int)}
+    reason = ksp.getConvergedReason()
+    return f"KSP reason {names.get(reason, 'UNKNOWN')} ({reason})"
+
+
 class LinearStepSolver:
-    """u = A^-1 b with one factorization reused by every step.  Collective."""
+    """u = A^-1 b with one factorization (or preconditioner) reused by every step.  Collective.
+
+    The answer is checked like a Newton step's: the residual |b - A u| must meet
+    max(atol, rtol * step_scale) with the SNES tolerances (-snes_rtol, -snes_atol,
+    -snes_max_it).  An exact solve meets it at once; an iterative KSP that stopped at its
+    own, looser tolerance is refined (u += A^-1 r, the same KSP) until it does, and a sweep
+    that does not reduce the residual is a failure.
+    """
 
     def __init__(self, comm, a_const: PETSc.Mat):
         self.a_const = a_const
@@ -89,18 +143,47 @@ class LinearStepSolver:
         configure_linear_solver(self.ksp)
         self.ksp.setFromOptions()
         check_factorization(self.ksp, a_const)
+        self.exact = is_exact(self.ksp)
+        options = PETSc.Options()
+        self.rtol = options.getReal("snes_rtol", DEFAULT_TOLERANCES["rtol"])
+        self.atol = options.getReal("snes_atol", DEFAULT_TOLERANCES["atol"])
+        self.max_sweeps = options.getInt("snes_max_it", DEFAULT_TOLERANCES["max_it"])
+        self._residual, self._correction = a_const.createVecLeft(), a_const.createVecRight()
         self.factorizations = 0
         self.jacobian_builds = 0
+        self.residual_norm = self.tolerance = float("nan")  # of the last step
 
     def solve(self, b: PETSc.Vec, u: PETSc.Vec, t: float) -> tuple[int, int]:
+        """Solve A u = b to the step tolerance from the guess u (overwritten).  Collective."""
         if self.factorizations == 0:
             self.ksp.setUp()
             self.factorizations = 1
-        self.ksp.solve(b, u)
-        reason = self.ksp.getConvergedReason()
-        if reason < 0:
-            raise SolverError(f"linear solve failed at t = {t:.6g}: KSP reason {reason}")
-        return 0, self.ksp.getIterationNumber()
+        self.tolerance = max(self.atol, self.rtol * step_scale(self.a_const, b, u, self._residual))
+        self._solve(b, u, t)
+        linear, previous = self.ksp.getIterationNumber(), np.inf
+        for _ in range(self.max_sweeps):
+            residual = self._residual
+            self.a_const.mult(u, residual)
+            residual.aypx(-1.0, b)  # b - A u
+            self.residual_norm = residual.norm()
+            if self.residual_norm <= self.tolerance:
+                return 0, linear
+            if not self.residual_norm < previous:  # also catches NaN
+                break
+            previous = self.residual_norm
+            self._solve(residual, self._correction, t)
+            u.axpy(1.0, self._correction)
+            linear += self.ksp.getIterationNumber()
+        raise SolverError(
+            f"linear solve failed at t = {t:.6g}: residual {self.residual_norm:.3g} above the "
+            f"step tolerance {self.tolerance:.3g} after {linear} linear iterations "
+            f"({INEXACT_HINT})"
+        )
+
+    def _solve(self, rhs: PETSc.Vec, out: PETSc.Vec, t: float) -> None:
+        self.ksp.solve(rhs, out)
+        if self.ksp.getConvergedReason() < 0:
+            raise SolverError(f"linear solve failed at t = {t:.6g}: {_ksp_failure(self.ksp)}")
 
 
 class ContactStepSolver:
@@ -112,18 +195,23 @@ class ContactStepSolver:
         # GAMG needs the rigid-body modes on the matrix it is built from
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
         self.b = a_const.createVecRight()
-        self.smooth = a_const.createVecRight()  # A u - b at the last residual evaluation
-        # work vectors of the line search and the energy, allocated once
-        self._direction, self._product, self._trial = (a_const.createVecRight() for _ in range(3))
+        # work vectors of the line search, the residual check and the energy, allocated once
+        self._direction, self._product, self._trial, self._smooth, self._check = (
+            a_const.createVecRight() for _ in range(5)
+        )
         self.factorizations = 0
         self.jacobian_builds = 0
         self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
         self.record_energy = False
+        self.residual_norm = self.tolerance = float("nan")  # of the last step
         self._signature = None  # active set the Jacobian was built for
-        self._last_active = None  # active set at the last residual evaluation
-        self._step_active = None  # active set of the iterate a Newton step started from
+        # active set of the iterate a Newton step started from (set before any step test)
+        self._step_active: np.ndarray = np.zeros(0, dtype=bool)
         self._exact_piece = False
+        self._step_norm = 0.0  # |update| the pre-check handed to the line search
+        self._failure: str | None = None  # why the running step must fail
         self.snes = self._create_snes(comm)
+        self.exact = is_exact(self.snes.getKSP())
 
     def _create_snes(self, comm) -> PETSc.SNES:
         snes = PETSc.SNES().create(comm)
@@ -132,11 +220,12 @@ class ContactStepSolver:
         snes.setJacobian(self._jacobian_callback, self.jacobian)
         snes.setLineSearchPreCheck(self._exact_line_search)
         snes.setConvergenceTest(self._converged)
-        snes.setTolerances(rtol=1e-12, atol=1e-50, stol=1e-13, max_it=200)
+        snes.setTolerances(**DEFAULT_TOLERANCES)
         configure_linear_solver(snes.getKSP())
         # petsc4py 3.18 has no SNES.getLineSearch: the default goes through the options
         # database, only while setFromOptions reads it (no leak into later runs)
         options = PETSc.Options()
+        _check_line_search(options)
         default_line_search = not options.hasName("snes_linesearch_type")
         if default_line_search:
             options.setValue("snes_linesearch_type", "basic")
@@ -156,13 +245,21 @@ class ContactStepSolver:
         quadratic = 0.5 * au.dot(u) - self.b.dot(u)
         return quadratic + self.law.energy(*self.law.kinematics(u))
 
-    def _residual(self, snes, u: PETSc.Vec, residual: PETSc.Vec) -> None:
-        self.a_const.mult(u, self.smooth)
-        self.smooth.axpy(-1.0, self.b)
-        self.smooth.copy(residual)
+    def _smooth_residual(self, u: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = A_const u - b, the gradient of J_n without contact.  Collective."""
+        self.a_const.mult(u, out)
+        out.axpy(-1.0, self.b)
+        return out
+
+    def _evaluate(self, u: PETSc.Vec, residual: PETSc.Vec) -> tuple[float, np.ndarray]:
+        """residual = F(u); returns |F(u)| and this rank's active set at u.  Collective."""
+        self._smooth_residual(u, residual)
         un, ut = self.law.kinematics(u)
         self.law.add_residual(residual, un, ut)
-        self._last_active = self.law.active_set(un, ut)
+        return residual.norm(), self.law.active_set(un, ut)
+
+    def _residual(self, snes, u: PETSc.Vec, residual: PETSc.Vec) -> None:
+        self._evaluate(u, residual)
 
     def _jacobian_callback(self, snes, u, jacobian, preconditioner) -> None:
         un, ut = self.law.kinematics(u)
@@ -180,28 +277,38 @@ class ContactStepSolver:
     def _exact_line_search(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:
         """Scale the update y so that x - y minimizes J_n along -y.  Collective.
 
-        If every Gamma_C point is on the same linear piece at x and at x - y, J_n is one
-        quadratic on the whole segment and the full Newton step is its exact minimizer.
+        With an exact linear solve, if every Gamma_C point is on the same linear piece at x
+        and at x - y, J_n is one quadratic on the whole segment and the full Newton step is
+        its exact minimizer.  Everything is computed here, at x: a line search of another
+        type evaluates the residual at other points.  A direction along which J_n does not
+        decrease stops the step (see :meth:`_not_descent`), whatever the solver.
         """
         direction = self._direction
         y.copy(direction)
         direction.scale(-1.0)
         un, ut = self.law.kinematics(x)
         dn, dt = self.law.kinematics(direction)
+        start_slope = self._smooth_residual(x, self._smooth).dot(direction)  # d^T (A x - b)
+        curvature = None  # d^T A d, computed only for the scan
+
+        def derivative(step):
+            value, slope = self.law.directional(un, ut, dn, dt, step)
+            return start_slope + step * curvature + value, curvature + slope
+
+        value, _ = self.law.directional(un, ut, dn, dt, 0.0)
+        if start_slope + value >= 0.0:  # phi'(0)
+            self._not_descent(x, start_slope + value)
+            self._exact_piece = False
+            y.scale(0.0)
+            return True
         same_piece = np.array_equal(self.law.piece(un, ut), self.law.piece(un + dn, ut + dt))
-        self._exact_piece = self.comm.allreduce(not same_piece) == 0
+        self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
         before = self.energy(x) if self.record_energy else 0.0
         if not self._exact_piece:
-            ad = self._product
-            self.a_const.mult(direction, ad)
-            curvature = ad.dot(direction)  # d^T A d
-            start_slope = self.smooth.dot(direction)  # d^T (A x - b)
-
-            def derivative(step):
-                value, slope = self.law.directional(un, ut, dn, dt, step)
-                return start_slope + step * curvature + value, curvature + slope
-
-            y.scale(_minimize_monotone(derivative))
+            self.a_const.mult(direction, self._product)
+            curvature = self._product.dot(direction)
+            y.scale(_minimize_monotone(derivative, derivative(0.0)))
+        self._step_norm = y.norm()
         if self.record_energy:
             trial = self._trial
             x.copy(trial)
@@ -209,27 +316,53 @@ class ContactStepSolver:
             self.line_search_log.append((before, self.energy(trial)))
         return not self._exact_piece
 
+    def _not_descent(self, x: PETSc.Vec, slope: float) -> None:
+        """phi'(0) >= 0: fail the step unless x already meets the tolerance.  Collective.
+
+        For an SPD Jacobian the exact Newton direction is always a descent one; phi'(0) >= 0
+        means an inexact (or broken) linear solve, or round-off at a converged iterate.
+        """
+        fnorm, _ = self._evaluate(x, self._check)
+        if fnorm <= self.tolerance:
+            return  # nothing left to gain: the step of 0 keeps x, which the test accepts
+        self._failure = (
+            "the Newton direction is not a descent direction (directional derivative "
+            f"{slope:.3g} >= 0 at |F| = {fnorm:.3g}, tolerance {self.tolerance:.3g}; "
+            f"{INEXACT_HINT})"
+        )
+
     # -- convergence ------------------------------------------------------------
     def _converged(self, snes, it, norms) -> int:
-        xnorm, ynorm, fnorm = norms
+        """|F(x)| <= tolerance on a settled active set; shortcuts only for exact solves.
+
+        The residual is evaluated here at the iterate, not taken from the line search.
+        """
+        xnorm, ynorm, _ = norms
+        if self._failure is not None:
+            return Reason.DIVERGED_LINE_SEARCH
+        fnorm, active = self._evaluate(snes.getSolution(), self._check)
+        self.residual_norm = fnorm
         if not np.isfinite(fnorm):
             return Reason.DIVERGED_FNORM_NAN
         if it == 0:
-            self._fnorm0 = fnorm
-            return Reason.CONVERGED_FNORM_ABS if fnorm == 0.0 else Reason.ITERATING
-        if self._exact_piece:  # the full step solved the (affine) residual on its piece
-            return Reason.CONVERGED_SNORM_RELATIVE
-        rtol, atol, stol, max_it = snes.getTolerances()
-        if ynorm <= stol * xnorm:
-            # the update is at round-off: the iterate sits on a kink (e.g. u_nu = s to
-            # round-off), where both pieces give the same (continuous) residual
-            return Reason.CONVERGED_SNORM_RELATIVE
-        settled = np.array_equal(self._last_active, self._step_active)
-        settled = self.comm.allreduce(not settled) == 0
-        if settled and fnorm <= atol:
+            return Reason.CONVERGED_FNORM_ABS if fnorm <= self.tolerance else Reason.ITERATING
+        settled = self.comm.allreduce(not np.array_equal(active, self._step_active)) == 0
+        if settled and fnorm <= self.tolerance:
             return Reason.CONVERGED_FNORM_ABS
-        if settled and fnorm <= rtol * self._fnorm0:
-            return Reason.CONVERGED_FNORM_RELATIVE
+        rtol, atol, stol, max_it = snes.getTolerances()
+        small_update = ynorm <= stol * xnorm
+        # exact solve: the full step solved the (affine) residual on its piece, or the update
+        # is at round-off because the iterate sits on a kink (e.g. u_nu = s to round-off)
+        # (the shortcut needs the full step: another line search type may have scaled it)
+        full_step = abs(ynorm - self._step_norm) <= 1e-8 * self._step_norm
+        if self.exact and ((self._exact_piece and full_step) or small_update):
+            return Reason.CONVERGED_SNORM_RELATIVE
+        if small_update:
+            self._failure = (
+                f"the Newton update is below stol |u| while |F| = {fnorm:.3g} exceeds the "
+                f"tolerance {self.tolerance:.3g} ({INEXACT_HINT})"
+            )
+            return Reason.DIVERGED_LINE_SEARCH
         if it >= max_it:
             return Reason.DIVERGED_MAX_IT
         return Reason.ITERATING
@@ -237,28 +370,35 @@ class ContactStepSolver:
     def solve(self, b: PETSc.Vec, u: PETSc.Vec, t: float) -> tuple[int, int]:
         """Minimize J_n from the initial guess u (overwritten).  Collective."""
         b.copy(self.b)
+        rtol, atol, _, _ = self.snes.getTolerances()
+        self.tolerance = max(atol, rtol * step_scale(self.a_const, b, u, self._check))
+        self._failure = None
         before = self.jacobian_builds
         self.snes.solve(None, u)
         reason = self.snes.getConvergedReason()
         newton, linear = self.snes.getIterationNumber(), self.snes.getLinearSolveIterations()
         self.factorizations += self.jacobian_builds - before
         if reason <= 0:
-            raise SolverError(
-                f"Newton failed at t = {t:.6g}: SNES reason {_reason_name(reason)} after "
-                f"{newton} Newton and {linear} linear iterations"
-            )
+            raise SolverError(f"Newton failed at t = {t:.6g}: {self._why(reason, newton, linear)}")
         return newton, linear
 
+    def _why(self, reason: int, newton: int, linear: int) -> str:
+        counts = f"after {newton} Newton and {linear} linear iterations"
+        if self._failure is not None:
+            return f"{self._failure}, {counts}"
+        detail = ""
+        if reason == Reason.DIVERGED_LINEAR_SOLVE:
+            detail = f", {_ksp_failure(self.snes.getKSP())}"
+        return f"SNES reason {_reason_name(reason)}{detail} {counts}"
 
-def _minimize_monotone(derivative, tol: float = 1e-13, max_iter: int = 200) -> float:
+
+def _minimize_monotone(derivative, start, tol: float = 1e-13, max_iter: int = 200) -> float:
     """Root of a monotone piecewise-linear derivative on [0, inf); Newton inside a bracket.
 
-    ``derivative(t)`` returns (phi'(t), slope of the current piece).  phi'(0) < 0 for a
-    descent direction; if not, the direction is not a descent one and 0 is returned.
+    ``derivative(t)`` returns (phi'(t), slope of the current piece); ``start`` is
+    derivative(0), with phi'(0) < 0 (a descent direction: the caller checks).
     """
-    d0, _ = derivative(0.0)
-    if d0 >= 0.0:
-        return 0.0
+    d0, _ = start
     scale = abs(d0)
     value, slope = derivative(1.0)
     if abs(value) <= tol * scale:
@@ -278,6 +418,16 @@ def _minimize_monotone(derivative, tol: float = 1e-13, max_iter: int = 200) -> f
         step = candidate
         value, slope = derivative(step)
     return step
+
+
+def _check_line_search(options: PETSc.Options) -> None:
+    """Refuse a -snes_linesearch_type the exact pre-check does not work with.  Not collective."""
+    kind = options.getString("snes_linesearch_type", "basic")
+    if kind not in LINE_SEARCHES:
+        raise InputError(
+            f"-snes_linesearch_type {kind}: not supported with the exact line search; "
+            f"allowed: {', '.join(LINE_SEARCHES)}"
+        )
 
 
 def _reason_name(reason: int) -> str:
