@@ -1092,6 +1092,25 @@ def petsc_cases() -> list[Case]:
             **ok,
         ),
         Case(
+            "petsc-linesearch-l2",
+            "4 one-line",
+            "-snes_linesearch_type l2",
+            run_args(*QUICK, "-snes_linesearch_type", "l2", scene="square"),
+            2,
+            "linesearch",
+        ),
+        # an inexact linear solve: the step is refined to the tolerance, or the run fails
+        Case(
+            "petsc-cg-jacobi-loose",
+            "5 PETSc options",
+            "-ksp_type cg -pc_type jacobi -ksp_rtol 1e-1",
+            run_args(
+                *QUICK, "-ksp_type", "cg", "-pc_type", "jacobi", "-ksp_rtol", "1e-1", scene="square"
+            ),
+            0,
+            **ok,
+        ),
+        Case(
             "petsc-ksp-bogus",
             "4 one-line",
             "-ksp_type bogus",
