@@ -11,7 +11,9 @@ With the gate fixed before the solve, psi_n keeps its convex form with a per-poi
 and the energy, residual, Jacobian and directional derivative all see the same g_eff.
 The state used is the Newmark predictor ut_n, the step's best guess of u_n known before
 the solve.  (Also counting points closed at t_{n-1} was measured worse: on the impact
-scene 402 point-steps ended OPEN while carrying friction, against 26 with the predictor.)
+scene 402 point-steps ended OPEN while carrying friction, against 32 with the predictor;
+the paper's "given" has 7498.)  While a point is open its slip follows u_tau (g = 0 in
+the return mapping), so it touches down with an unstressed friction spring.
 The price is a lag at a status change: a point that touches down within step n, but not
 at the predictor, gets its friction from step n + 1 on, and one that lifts off within
 step n, but not at the predictor, still carried friction during step n (it is reported
