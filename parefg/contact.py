@@ -5,6 +5,7 @@ tau_q = (-nu_2, nu_1)) with u_nu = nu . u_h, u_tau = tau . u_h:
 
     normal pressure   p_q = alpha_C (u_nu - s)^+                      (>= 0)
     friction force    f_q = clip(alpha_T (u_tau - xi_q), -g_q, g_q)    (xi: accumulated slip)
+    bound             g_q = g_n(x_q) where the part's friction law acts, else 0 (parefg.friction)
     energy            alpha_C/2 ((u_nu - s)^+)^2 + psi(u_tau - xi_q)
     psi(z)            alpha_T z^2/2 for |z| <= g/alpha_T, else g|z| - g^2/(2 alpha_T)
 
@@ -12,6 +13,12 @@ The residual gets B_nu^T (w p) + B_tau^T (w f); the semismooth Jacobian gets
 alpha_C B_nu^T W B_nu on closed points and alpha_T B_tau^T W B_tau on sticking ones.
 Everything is piecewise linear in u, so the energy along a Newton direction is convex
 piecewise quadratic (see :meth:`ContactLaw.directional`).
+
+The friction law gates the bound once per step, before the solve (:meth:`ContactLaw.gate`):
+"tresca" keeps g only at points touching at the Newmark predictor, "given" everywhere.
+So the per-step energy stays convex, and every method below (energy, residual, Jacobian,
+piece, directional derivative, return mapping, dissipation) sees the same gated bound: the
+exact line search minimizes the energy whose gradient is the residual.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.assembly import owned_rows, petsc_matrix
+from parefg.friction import FRICTION_LAWS
 from parefg.guards import DataGuard
 
 OPEN, STICK, SLIP = 0, 1, 2
@@ -51,7 +59,9 @@ class ContactLaw:
         self.part = points.part
         self.has_friction = not all(bc.friction_is_zero for bc in self._bcs.values())
         self.gap = self._per_part("gap", lambda bc, x, y, n: bc.gap(x, y), 0.0)
-        self.bound = np.zeros(len(self.weights))  # g_n at the points, set by set_time
+        self.bound_data = np.zeros(len(self.weights))  # g_n(x_q) at the points, set by set_time
+        self.acting = np.ones(len(self.weights), dtype=bool)  # where the law lets g act (gate)
+        self.bound = np.zeros(len(self.weights))  # g_n where acting, else 0: used by the step
         self.slip = np.zeros(len(self.weights))  # xi, accumulated slip
         self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
         self.step_friction = np.zeros(len(self.weights))
@@ -98,14 +108,35 @@ class ContactLaw:
         return out
 
     def set_time(self, t: float) -> None:
-        """Friction bound g(x, t) >= 0 at the points (bad values go to the guard)."""
+        """Friction bound g(x, t) >= 0 at the points (bad values go to the guard).
+
+        The bound the step uses is g where the last :meth:`gate` let friction act.
+        """
         if self.has_friction:
-            self.bound = self._per_part(
+            self.bound_data = self._per_part(
                 "friction",
                 lambda bc, x, y, n: bc.friction(x, y, t, n[:, 0], n[:, 1]),
                 t,
                 nonnegative=True,
             )
+            self.bound = np.where(self.acting, self.bound_data, 0.0)
+
+    def gate(self, u_predicted: PETSc.Vec) -> None:
+        """Fix for the coming step where each part's friction law lets the bound act.
+
+        ``u_predicted`` is the Newmark predictor ut_n; see parefg.friction for why the
+        gate is decided before the solve (a convex J_n).  Nothing to checkpoint: the
+        predictor follows from the checkpointed (u, v, a).
+        Call before :meth:`set_time` or after it: both keep bound = g * acting.  Collective.
+        """
+        if not self.has_friction:
+            return
+        un_predicted = self.kinematics(u_predicted)[0]
+        for part_id, bc in self._bcs.items():
+            on = self.part == part_id
+            law = FRICTION_LAWS[bc.friction_law]
+            self.acting[on] = law(un_predicted[on], self.gap[on])
+        self.bound = np.where(self.acting, self.bound_data, 0.0)
 
     def kinematics(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
         """(u_nu, u_tau) at the points.  Collective."""

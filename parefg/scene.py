@@ -92,7 +92,8 @@ class BoundaryCondition:
     ``value(x, y, t) -> (2, n)`` (dirichlet ubar), ``traction(x, y, t, nx, ny)
     -> (2, n)`` (neumann p), ``gap(x, y) -> (n,)`` and ``friction(x, y, t, nx,
     ny) -> (n,)`` (contact s and Tresca bound g); ``friction_is_zero`` is True
-    when g is identically zero, so the solver can skip tangential terms.
+    when g is identically zero, so the solver can skip tangential terms;
+    ``friction_law`` names the contact part's law in parefg.friction.FRICTION_LAWS.
     """
 
     name: str
@@ -102,6 +103,7 @@ class BoundaryCondition:
     gap: Field | None = None
     friction: Field | None = None
     friction_is_zero: bool = True
+    friction_law: str = "tresca"
 
 
 @dataclass
@@ -409,4 +411,5 @@ def _boundary(where: str, name: str, table: dict, mechanics, checks) -> Boundary
         friction=lambda x, y, t, nx, ny: friction_field(x, y, t, nx, ny)[0],
         # derived friction is homogeneous in (nx, ny): zero for all normals iff for unit ones
         friction_is_zero=is_identically_zero(friction[0], [SYMBOLS[s] for s in with_normal]),
+        friction_law=table["friction_law"],
     )

@@ -207,6 +207,7 @@ class Simulation:
             self.disc.dirichlet.mult(u, ku)
             rhs.axpy(-self.scene.alpha_dirichlet, ku)
             if self.law is not None:
+                self.law.gate(u)
                 self.law.set_time(0.0)
                 un, ut = self.law.kinematics(u)
                 self.law.slip = ut.copy()  # xi_0 = u_tau(0)
@@ -280,6 +281,7 @@ class Simulation:
             b.axpy(self.scheme.mass_coefficient, self._work)
         ut.copy(new.u)  # initial guess: the predictor
         if self.law is not None:
+            self.law.gate(ut)  # where friction acts in this step (friction law)
             self.law.set_time(t)
         self.guard.check()  # the step's data, before they reach the solve
         with phase(self.timings, "solve"):

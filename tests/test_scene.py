@@ -85,7 +85,8 @@ def test_effective_params_contain_defaults(square):
     )
     # 20 steps: the default series (about 50 frames) outputs every step
     assert params["output"] == {"every": 1, "fields": ["u", "v", "a", "von_mises", "contact"]}
-    assert params["boundary"]["bottom"] == {"type": "contact", "gap": 0}
+    # friction derived from [exact]: the paper's given friction by default
+    assert params["boundary"]["bottom"] == {"type": "contact", "gap": 0, "friction_law": "given"}
     assert json.loads(json.dumps(params)) == params
 
 
@@ -151,7 +152,8 @@ def test_overrides_change_values():
     bottom = scene.boundaries["bottom"]
     assert bottom.friction_is_zero
     np.testing.assert_allclose(bottom.gap(np.array([0.5, 1.0]), np.zeros(2)), [0.05, 0.1])
-    assert scene.params["boundary"]["bottom"] == {"type": "contact", "gap": "0.1*x", "friction": 0}
+    expected = {"type": "contact", "gap": "0.1*x", "friction": 0, "friction_law": "tresca"}
+    assert scene.params["boundary"]["bottom"] == expected
     # true is a bare flag (PETSc reads "-snes_monitor true" as a viewer named "true")
     assert scene.solver_options == {"ksp_type": "cg", "snes_monitor": "", "ksp_rtol": "1e-08"}
 
