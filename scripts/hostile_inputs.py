@@ -1008,6 +1008,13 @@ def value_cases() -> list[Case]:
             "friction",
         ),
         bad_set("gap-negative", "5 garbage", "gap = -0.1", "boundary.bottom.gap=-0.1", "gap"),
+        bad_set(
+            "friction-law-bogus",
+            "9 schema",
+            "friction_law = coulomb (not yet)",
+            "boundary.bottom.friction_law=coulomb",
+            "friction_law",
+        ),
         bad_set("newmark-beta", "5 garbage", "time.beta = 0.1 < gamma/2", "time.beta=0.1", "beta"),
         Case(
             "static-no-dirichlet",
