@@ -31,22 +31,13 @@ NODE_FIELDS = {"u": "displacement", "v": "velocity", "a": "acceleration", "von_m
 GARBAGE_EVERY = 1000
 
 
-def choose_output_dir(comm, scene_name: str, requested: str | None) -> Path:
-    """Check and create the run's output directory; never an existing non-empty one.
-
-    Without --out: runs/<scene>, or runs/<scene>-2, -3, ... if taken.  Collective.
-    """
-    path = plan_output_dir(comm, scene_name, requested)
-    create_output_dir(comm, path, requested)
-    return path
-
-
 def plan_output_dir(comm, scene_name: str, requested: str | None) -> Path:
     """The run's output directory, checked but not created (nothing is written).  Collective.
 
-    Refuses (InputError on every rank) an existing non-empty directory, a path that is
-    not a directory, a dangling symbolic link, a name the file system cannot hold, and a
-    path under a file; what only mkdir can tell (/proc, a read-only file system) is
+    Without --out: runs/<scene>, or runs/<scene>-2, -3, ... if taken.  Refuses
+    (InputError on every rank) an existing non-empty directory, a path that is not a
+    directory, a dangling symbolic link, a name the file system cannot hold, and a path
+    under a file; what only mkdir can tell (/proc, a read-only file system) is
     refused by :func:`create_output_dir`.
     """
     message, path = None, None

@@ -121,9 +121,7 @@ def step_scale(a_const: PETSc.Mat, b: PETSc.Vec, u0: PETSc.Vec, work: PETSc.Vec)
 
 
 def _ksp_failure(ksp: PETSc.KSP) -> str:
-    names = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if isinstance(v, int)}
-    reason = ksp.getConvergedReason()
-    return f"KSP reason {names.get(reason, 'UNKNOWN')} ({reason})"
+    return f"KSP reason {_reason_name(PETSc.KSP.ConvergedReason, ksp.getConvergedReason())}"
 
 
 class LinearStepSolver:
@@ -389,7 +387,7 @@ class ContactStepSolver:
         detail = ""
         if reason == Reason.DIVERGED_LINEAR_SOLVE:
             detail = f", {_ksp_failure(self.snes.getKSP())}"
-        return f"SNES reason {_reason_name(reason)}{detail} {counts}"
+        return f"SNES reason {_reason_name(Reason, reason)}{detail} {counts}"
 
 
 def _minimize_monotone(derivative, start, tol: float = 1e-13, max_iter: int = 200) -> float:
@@ -430,6 +428,7 @@ def _check_line_search(options: PETSc.Options) -> None:
         )
 
 
-def _reason_name(reason: int) -> str:
-    names = {v: k for k, v in vars(Reason).items() if isinstance(v, int)}
+def _reason_name(reasons, reason: int) -> str:
+    """``NAME (code)`` of a PETSc converged-reason code, from its enum class ``reasons``."""
+    names = {v: k for k, v in vars(reasons).items() if isinstance(v, int)}
     return f"{names.get(reason, 'UNKNOWN')} ({reason})"
