@@ -9,7 +9,7 @@ from parefg import __version__
 
 def run(comm, args) -> int:
     from parefg.run import run_scene
-    from parefg.scene import load_scene
+    from parefg.scene.loader import load_scene
 
     scene = load_scene(args.scene, args.set)
     run_scene(
@@ -33,7 +33,7 @@ def sweep(comm, args) -> int:
 
 
 def scenes(comm, args) -> int:
-    from parefg.scene import builtin_scenes
+    from parefg.scene.loader import builtin_scenes
 
     if comm.rank == 0:
         for name, description in builtin_scenes().items():

@@ -14,15 +14,15 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg import __version__
-from parefg.budget import check_problem_size
-from parefg.checkpoint import read_checkpoint, write_checkpoint
+from parefg.discretization.budget import check_problem_size
+from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError, Interrupted, SolverError
-from parefg.monitors import Progress, StopRequest
-from parefg.operators import build_discretization
-from parefg.output import ResultWriter
+from parefg.io.checkpoint import read_checkpoint, write_checkpoint
+from parefg.io.monitors import Progress, StopRequest
+from parefg.io.output import ResultWriter
 from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
 from parefg.profiling import factorization_stats, phase, start_logging
-from parefg.simulation import Simulation
+from parefg.timestepping.simulation import Simulation
 
 # [output] fields -> node datasets of each (the "contact" entry writes the Gamma_C fields)
 NODE_FIELDS = {"u": "displacement", "v": "velocity", "a": "acceleration", "von_mises": "von_mises"}

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from parefg.budget import check_problem_size
+from parefg.discretization.budget import check_problem_size
 from parefg.errors import InputError
 from parefg.run import create_output_dir, plan_output_dir, remove_empty_dirs, run_scene
-from parefg.scene import load_scene
+from parefg.scene.loader import load_scene
 
 RATE_KEYS = {"discretization.h": "h", "time.dt": "dt"}
 

@@ -27,7 +27,7 @@ petsc4py.init(sys.argv[:1])
 from mpi4py import MPI  # noqa: E402
 
 from parefg.run import run_scene  # noqa: E402
-from parefg.scene import load_scene  # noqa: E402
+from parefg.scene.loader import load_scene  # noqa: E402
 
 GETFEM = [  # (target H1, seconds, DOFs, setting) from the brief
     (1e-3, 0.35, None, "P2"),

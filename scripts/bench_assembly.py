@@ -14,8 +14,8 @@ import benchlib
 import numpy as np
 from mpi4py import MPI
 
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
+from parefg.discretization.operators import build_discretization
+from parefg.scene.loader import load_scene
 
 CASES = [(1, 1 / 32), (1, 1 / 64), (2, 1 / 32), (2, 1 / 64)]
 PHASES = ["mesh", "mls", "assembly"]

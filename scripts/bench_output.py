@@ -21,7 +21,7 @@ petsc4py.init(sys.argv[:1])
 from mpi4py import MPI  # noqa: E402
 
 from parefg.run import run_scene  # noqa: E402
-from parefg.scene import load_scene  # noqa: E402
+from parefg.scene.loader import load_scene  # noqa: E402
 
 SMALL = ["discretization.h=0.25", "discretization.degree=1", "time.dt=1e-4", "output.every=1"]
 FREE = ['boundary.bottom.type="dirichlet"']

@@ -21,9 +21,9 @@ import parefg  # noqa: F401  (PETSC_DIR)
 petsc4py.init(sys.argv[:1])
 from mpi4py import MPI  # noqa: E402
 
-from parefg.operators import build_discretization  # noqa: E402
-from parefg.scene import load_scene  # noqa: E402
-from parefg.simulation import Simulation  # noqa: E402
+from parefg.discretization.operators import build_discretization  # noqa: E402
+from parefg.scene.loader import load_scene  # noqa: E402
+from parefg.timestepping.simulation import Simulation  # noqa: E402
 
 CASES = [
     (

@@ -1,8 +1,8 @@
-"""Calibration of parefg.budget: estimated peak memory against summary.json's peak_rss_mb.
+"""Calibration of the memory budget: estimated peak memory against summary.json's peak_rss_mb.
 
 Runs each case with the CLI (2 time steps, in a temporary directory), reads the measured
 peak resident memory of the largest rank and the DOF count from summary.json, and prints
-them beside parefg.budget's estimate (parefg.budget.memory_per_rank of the scene's
+them beside the budget's estimate (parefg.discretization.budget.memory_per_rank of the scene's
 estimated size) and their ratio.  The estimate should stay within a factor 2 of the
 measurement; writes results/calibrate_budget.csv.
 
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import benchlib
 
-from parefg.budget import estimate_scene, memory_per_rank
-from parefg.scene import load_scene
+from parefg.discretization.budget import estimate_scene, memory_per_rank
+from parefg.scene.loader import load_scene
 
 PAREFG = str(Path(sys.executable).with_name("parefg"))
 H = {"1/16": 1 / 16, "1/32": 1 / 32, "1/48": 1 / 48, "1/64": 1 / 64, "1/96": 1 / 96}

@@ -23,7 +23,7 @@ import numpy as np
 from mpi4py import MPI
 
 from parefg.run import run_scene
-from parefg.scene import load_scene
+from parefg.scene.loader import load_scene
 
 SCENES = ("square", "z")
 

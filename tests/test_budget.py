@@ -21,7 +21,7 @@ import pytest
 from conftest import PAREFG, REPO, mpi_env
 from mpi4py import MPI
 
-from parefg.budget import (
+from parefg.discretization.budget import (
     CLOUD_SLACK,
     GB,
     Budget,
@@ -31,11 +31,11 @@ from parefg.budget import (
     memory_per_rank,
     unstructured_size,
 )
+from parefg.discretization.mls import MLS
+from parefg.discretization.quadrature import cell_quadrature
 from parefg.errors import InputError
-from parefg.geometry import build_node_cloud
-from parefg.mls import MLS
-from parefg.quadrature import cell_quadrature
-from parefg.scene import load_scene
+from parefg.geometry.domains import build_node_cloud
+from parefg.scene.loader import load_scene
 
 COMM = MPI.COMM_WORLD
 ADDRESS_SPACE = 4 * 10**9  # bytes of virtual memory a refusing child may take
@@ -171,7 +171,7 @@ def test_estimate_is_within_a_factor_2_of_the_measured_peak(tmp_path):
 
 PROMPTING_MODEL = """
 import gmsh
-from parefg.geometry import _gmsh_initialize
+from parefg.geometry.domains import _gmsh_initialize
 
 _gmsh_initialize(gmsh)
 # point sizes 1e7 times below the model's size make gmsh ask "Do you really want to
@@ -213,7 +213,7 @@ def test_gmsh_never_asks_on_stdin():
 
 STDIN_DURING_MESHING = """
 import os
-from parefg.geometry import _stdin_closed
+from parefg.geometry.domains import _stdin_closed
 
 with _stdin_closed():
     print("inside", os.read(0, 10))
@@ -407,9 +407,9 @@ SQUARE_PARTS = ["bottom", "right", "top", "left"]
 
 MESH_UNDER_BUDGET = """
 import sys
-from parefg.budget import Budget, GB
-from parefg.geometry import mesh_domain
-from parefg.scene import load_scene
+from parefg.discretization.budget import Budget, GB
+from parefg.geometry.domains import mesh_domain
+from parefg.scene.loader import load_scene
 
 scene = load_scene("square", sys.argv[1:])
 budget = Budget(scene, 0.5 * GB, host_ranks=1, n_ranks=1, given=True)
@@ -493,7 +493,7 @@ def test_size_floor_leaves_legitimate_refinement_alone(source, name, parts, exte
     budget = Budget(scene, 8 * GB, host_ranks=1, n_ranks=1, given=True)
     assert budget.size_floor(*extent) < scene.h / 4
     if COMM.rank == 0:  # meshing is rank 0's
-        from parefg.geometry import mesh_domain
+        from parefg.geometry.domains import mesh_domain
 
         bounded = mesh_domain(scene.domain, scene.h, scene.cells, budget)
         free = mesh_domain(scene.domain, scene.h, scene.cells)

@@ -17,7 +17,7 @@ from petsc4py import PETSc
 from test_cli import QUICK, assert_bad_input
 
 from parefg.run import run_scene
-from parefg.scene import load_scene
+from parefg.scene.loader import load_scene
 
 WARNING = "parefg: warning:"
 

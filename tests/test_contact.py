@@ -11,12 +11,12 @@ import pytest
 from conftest import run_parefg
 from mpi4py import MPI
 
-from parefg.contact import OPEN, SLIP, STICK
+from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError
-from parefg.friction import FRICTION_LAWS
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.mechanics.contact import OPEN, SLIP, STICK
+from parefg.mechanics.friction import FRICTION_LAWS
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_WORLD
 

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
-from parefg.solver import ContactStepSolver, LinearStepSolver
+from parefg.discretization.operators import build_discretization
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
+from parefg.timestepping.step_solver import ContactStepSolver, LinearStepSolver
 
 COMM = MPI.COMM_WORLD
 

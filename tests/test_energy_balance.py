@@ -12,9 +12,9 @@ touching points only).
 import numpy as np
 from mpi4py import MPI
 
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.discretization.operators import build_discretization
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 COLUMNS = ("kinetic_energy", "elastic_energy", "penalty_energy", "dissipated_energy")
 

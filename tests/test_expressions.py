@@ -8,7 +8,7 @@ import pytest
 import sympy
 
 from parefg.errors import InputError
-from parefg.expressions import SYMBOLS, compile_field, parse_expression
+from parefg.scene.expressions import SYMBOLS, compile_field, parse_expression
 
 RNG = np.random.default_rng(7)
 X, Y = RNG.uniform(0.05, 0.95, size=(2, 9))  # (n,) points, away from kinks at 0 and 0.5

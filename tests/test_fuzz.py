@@ -29,8 +29,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from parefg.errors import InputError
-from parefg.expressions import compile_field, parse_expression
-from parefg.scene import SECTIONS, Scene, load_scene
+from parefg.scene.expressions import compile_field, parse_expression
+from parefg.scene.loader import SECTIONS, Scene, load_scene
 
 pytestmark = pytest.mark.serial_only
 

@@ -13,7 +13,7 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry import build_node_cloud, orient_counter_clockwise
+from parefg.geometry.domains import build_node_cloud, orient_counter_clockwise
 
 COMM = MPI.COMM_WORLD
 PLATE_GEO = str(Path(__file__).resolve().parents[1] / "meshes" / "plate_with_hole.geo")

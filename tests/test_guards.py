@@ -16,11 +16,11 @@ import pytest
 from conftest import run_parefg
 from mpi4py import MPI
 
+from parefg.discretization.operators import build_discretization
 from parefg.errors import DataError, InputError, SolverError
 from parefg.guards import DataGuard
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_WORLD
 

@@ -12,9 +12,9 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry import NodeCloud, build_node_cloud, node_spacing
-from parefg.jitter import jitter_cloud
-from parefg.scene import load_scene
+from parefg.geometry.domains import NodeCloud, build_node_cloud, node_spacing
+from parefg.geometry.jitter import jitter_cloud
+from parefg.scene.loader import load_scene
 
 COMM = MPI.COMM_WORLD
 SQUARE = {"shape": "square"}

@@ -11,9 +11,9 @@ its header at 50 DOFs), so a single vector leaked per step fails it.
 import pytest
 from mpi4py import MPI
 
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.discretization.operators import build_discretization
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 SLOPE_BOUND = 1024  # bytes per step
 TINY = ["discretization.h=0.25", "discretization.degree=1", "time.dt=1e-3", "time.T=10"]

@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from parefg import mls as mls_module
-from parefg import mls_kernels
+from parefg.discretization import mls as mls_module
+from parefg.discretization import mls_kernels
+from parefg.discretization.mls import BACKENDS, MLS, MLSError, basis_exponents, n_basis
+from parefg.discretization.weights import WEIGHTS, get_weight
 from parefg.errors import InputError
-from parefg.mls import BACKENDS, MLS, MLSError, basis_exponents, n_basis
-from parefg.weights import WEIGHTS, get_weight
 
 H = 0.1
 # Dilation s per degree m that gives every point enough well-placed neighbours.
@@ -102,8 +102,8 @@ def test_reproduces_polynomials_on_unit_square(cloud, degree, weight):
 
 @pytest.fixture(scope="module")
 def geometry_clouds():
-    """Square and Z node clouds from parefg.geometry (collective: built on every rank)."""
-    geometry = pytest.importorskip("parefg.geometry")
+    """Square and Z node clouds from parefg.geometry.domains (collective: built on every rank)."""
+    geometry = pytest.importorskip("parefg.geometry.domains")
     return {
         shape: geometry.build_node_cloud(MPI.COMM_WORLD, {"shape": shape}, H)
         for shape in ("square", "z")
@@ -114,7 +114,7 @@ def geometry_clouds():
 @pytest.mark.parametrize("degree", [1, 2, 3])
 @pytest.mark.parametrize("domain", ["square", "z"])
 def test_reproduces_polynomials_on_gmsh_clouds(geometry_clouds, domain, degree, weight):
-    from parefg.quadrature import cell_quadrature, segment_quadrature
+    from parefg.discretization.quadrature import cell_quadrature, segment_quadrature
 
     cloud = geometry_clouds[domain]
     # Cell and boundary Gauss points and the nodes: everywhere the solver evaluates MLS.

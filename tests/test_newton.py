@@ -9,10 +9,10 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError, SolverError
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_WORLD
 SHORT = ["discretization.h=0.125", "discretization.degree=1", "time.T=0.2"]

@@ -18,7 +18,7 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.output import ResultWriter, _PointRows
+from parefg.io.output import ResultWriter, _PointRows
 
 REPO = Path(__file__).resolve().parents[1]
 N_NODES = 23

@@ -7,8 +7,8 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry import build_node_cloud
-from parefg.partition import interface_fraction, partition_cloud
+from parefg.geometry.domains import build_node_cloud
+from parefg.geometry.partition import interface_fraction, partition_cloud
 
 COMM = MPI.COMM_WORLD
 PART_COUNTS = [1, 2, 3, 4]

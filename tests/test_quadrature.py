@@ -2,15 +2,15 @@
 
 Expected integrals come from Green's theorem on the polygon edges, each edge
 integrated with numpy's 30-point Gauss-Legendre rule (exact for the polynomial
-integrands here), never from parefg.quadrature.
+integrands here), never from parefg.discretization.quadrature.
 """
 
 import numpy as np
 import pytest
 from mpi4py import MPI
 
+from parefg.discretization.quadrature import cell_quadrature, segment_quadrature
 from parefg.errors import InputError
-from parefg.quadrature import cell_quadrature, segment_quadrature
 
 # A strongly distorted (non-parallelogram) quadrilateral, a parallelogram and a triangle, CCW.
 QUAD = [(0, 0), (2, 0.3), (1.7, 1.5), (0.1, 1)]
@@ -146,7 +146,7 @@ def test_bad_order_is_input_error():
 
 
 def test_z_domain_area_perimeter_and_divergence_theorem():
-    geometry = pytest.importorskip("parefg.geometry")
+    geometry = pytest.importorskip("parefg.geometry.domains")
     cloud = geometry.build_node_cloud(MPI.COMM_WORLD, {"shape": "z"}, 0.1)
     z = [(0, 0), (1, 0), (1, 0.25), (0.4, 0.25), (1, 0.75), (1, 1), (0, 1), (0, 0.75), (0.6, 0.75),
          (0, 0.25)]  # fmt: skip

@@ -16,12 +16,12 @@ from conftest import run_parefg
 from mpi4py import MPI
 from test_cli import assert_bad_input
 
-from parefg.checkpoint import read_checkpoint, write_checkpoint
+from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError
-from parefg.operators import build_discretization
+from parefg.io.checkpoint import read_checkpoint, write_checkpoint
 from parefg.run import run_scene
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 
 def _final_displacement(run_dir):

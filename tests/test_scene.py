@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from parefg.errors import InputError
-from parefg.scene import builtin_scenes, load_scene
+from parefg.scene.loader import builtin_scenes, load_scene
 
 # Plane strain constants of E = 1, nu = 0.3, by hand.
 LAM = 0.3 / (1.3 * 0.4)

@@ -13,8 +13,13 @@ from conftest import run_parefg
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry import MAX_POLYGON_VERTICES, Z_VERTICES, build_node_cloud, polygon_defect
-from parefg.scene import load_scene
+from parefg.geometry.domains import (
+    MAX_POLYGON_VERTICES,
+    Z_VERTICES,
+    build_node_cloud,
+    polygon_defect,
+)
+from parefg.scene.loader import load_scene
 
 COMM = MPI.COMM_WORLD
 STATIC = '[time]\nscheme = "static"\nT = 1.0\ndt = 1.0\n\n[discretization]\nh = 0.25\n'

@@ -5,9 +5,9 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.discretization.operators import build_discretization
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 
 def _simulation(overrides):

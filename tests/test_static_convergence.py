@@ -17,9 +17,9 @@ Collective: every rank loads the scene, builds and solves; the errors are global
 import numpy as np
 import pytest
 
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.discretization.operators import build_discretization
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 EXACT_U = '["sin(x) * exp(y) / 2", "cos(x + y) / 3"]'
 

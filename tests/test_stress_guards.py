@@ -12,9 +12,9 @@ import pytest
 from conftest import run_parefg
 from mpi4py import MPI
 
-from parefg.operators import build_discretization
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.discretization.operators import build_discretization
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 COARSE = ["discretization.h=0.125", "discretization.degree=1"]
 

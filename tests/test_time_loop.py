@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from conftest import PAREFG, mpi_env
 
-from parefg.operators import build_discretization
+from parefg.discretization.operators import build_discretization
 from parefg.run import _output_fields, run_scene
-from parefg.scene import load_scene
-from parefg.simulation import Simulation
+from parefg.scene.loader import load_scene
+from parefg.timestepping.simulation import Simulation
 
 TINY = ["discretization.h=0.25", "discretization.degree=1"]
 FREE = ['boundary.bottom.type="dirichlet"']  # no Gamma_C: one linear solve per step

@@ -16,19 +16,19 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.assembly import (
+from parefg.discretization.assembly import (
     Coupling,
     gradient_operator,
     owned_rows,
     petsc_matrix,
     value_operator,
 )
-from parefg.budget import Budget, check_problem_size
-from parefg.geometry import NodeCloud, build_node_cloud
-from parefg.mls import MLS, MLSError, ShapeValues
-from parefg.partition import Partition, partition_cloud
+from parefg.discretization.budget import Budget, check_problem_size
+from parefg.discretization.mls import MLS, MLSError, ShapeValues
+from parefg.discretization.quadrature import Quadrature, cell_quadrature, segment_quadrature
+from parefg.geometry.domains import NodeCloud, build_node_cloud
+from parefg.geometry.partition import Partition, partition_cloud
 from parefg.profiling import phase
-from parefg.quadrature import Quadrature, cell_quadrature, segment_quadrature
 
 
 @dataclass
@@ -336,8 +336,8 @@ class _Builder:
 def build_discretization(comm, scene, budget: Budget | None = None) -> Discretization:
     """Mesh, partition, MLS and assemble every constant operator of ``scene``.  Collective.
 
-    ``budget`` (default: the machine's, :func:`parefg.budget.check_problem_size`) refuses
-    the scene with InputError on every rank when its run cannot fit in memory: from its
+    ``budget`` (default: the machine's, :func:`~parefg.discretization.budget.check_problem_size`)
+    refuses the scene with InputError on every rank when its run cannot fit in memory: from its
     parameters, for a .geo before meshing, and from the node cloud before MLS.
     """
     if budget is None:

@@ -30,7 +30,7 @@ import h5py
 import numpy as np
 
 from parefg.errors import InputError
-from parefg.timestepping import State
+from parefg.timestepping.schemes import State
 
 VECTORS = ("u", "v", "a")
 FORMAT = "parefg-checkpoint"

@@ -22,8 +22,8 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg import assembly_kernels as kernels
-from parefg.mls import ShapeValues
+from parefg.discretization import assembly_kernels as kernels
+from parefg.discretization.mls import ShapeValues
 
 
 def _sorted_neighbours(shape: ShapeValues, n_nodes: int):
@@ -96,8 +96,8 @@ class Coupling:
     """Which nodes share a point: the scalar CSR pattern of every Gram matrix of a point set.
 
     Points are processed in groups (the Gauss points of one cell or segment, contiguous
-    in a :class:`~parefg.quadrature.Quadrature`): a group's neighbour lists overlap, so
-    its Gram contributions are summed in a small dense matrix over the group's nodes and
+    in a :class:`~parefg.discretization.quadrature.Quadrature`): a group's neighbour lists
+    overlap, so its Gram contributions are summed in a small dense matrix over the group's nodes and
     added to the CSR entries once per group.  Row I of the pattern holds exactly the
     nodes J with phi_I phi_J nonzero at some point (sorted), whatever the grouping.
     """

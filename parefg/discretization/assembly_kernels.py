@@ -1,6 +1,6 @@
 """Compiled (numba) kernels of the sparse assembly: node-to-point lists, pattern, Gram rows.
 
-The mathematics is that of :mod:`parefg.assembly` (SPEC 3); this module only changes
+The mathematics is that of :mod:`parefg.discretization.assembly` (SPEC 3); this module only changes
 how it is computed.  A Gram matrix of shape-function data at quadrature points,
 
     G[I, J, a, b] = sum_q w_q left_a(phi_I)(x_q) right_b(phi_J)(x_q),

@@ -4,7 +4,7 @@
 dropping comments, and refuses what the geometry subset never needs (characters
 gmsh has no token for, unterminated strings or comments, control characters).
 :func:`render` writes the tokens back, one space apart, each on its original line:
-this text, not the user's, is what gmsh reads (:mod:`parefg.geo`), so no
+this text, not the user's, is what gmsh reads (:mod:`parefg.geometry.geo`), so no
 comment, odd spacing or lexer corner case can make gmsh see other tokens than the
 ones that were checked.
 

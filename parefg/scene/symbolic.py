@@ -234,7 +234,7 @@ def is_identically_zero(expr: sympy.Expr, symbols: Sequence[sympy.Symbol]) -> bo
     not finite and real at a sample point (sqrt(x - 2) at x < 2), or zero only where a
     Heaviside switches off (heaviside(x - 0.999)), is "not zero": the safe answer, which
     only costs the solver the work of a zero term.  DiracDelta counts as zero, as in
-    :func:`~parefg.expressions.compile_field`.
+    :func:`~parefg.scene.expressions.compile_field`.
     """
     if expr == 0:
         return True

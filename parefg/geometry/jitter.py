@@ -1,7 +1,7 @@
 """Jittered node clouds: seeded, fold-free perturbation of interior nodes.
 
 ``[discretization] jitter`` and ``seed`` of a scene move every interior node of
-the gmsh cloud (:func:`parefg.geometry.build_node_cloud`) by a random offset of
+the gmsh cloud (:func:`parefg.geometry.domains.build_node_cloud`) by a random offset of
 at most ``jitter`` times its local spacing, redrawing the nodes of any folded
 cell, so that EFG can be tried on irregular clouds.
 """
@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from parefg.errors import InputError
-from parefg.geometry import NodeCloud, node_spacing
+from parefg.geometry.domains import NodeCloud, node_spacing
 
 MAX_JITTER = 0.45  # fraction of the local spacing c_I
 JITTER_ROUNDS = 20  # redraws of the nodes of folded cells; the last one restores them

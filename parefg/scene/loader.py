@@ -14,7 +14,7 @@ data the scene leaves out are derived from it by symbolic differentiation:
 
 Derived data stay out of ``params`` (they follow from ``[exact]``), so loading
 the effective scene again gives the same scene.  The schema (sections, keys,
-defaults, checks) lives in :mod:`parefg.scene_schema`; its public names are
+defaults, checks) lives in :mod:`parefg.scene.schema`; its public names are
 re-exported here.
 """
 
@@ -28,9 +28,9 @@ import numpy as np
 import sympy
 
 from parefg.errors import InputError
-from parefg.expressions import SYMBOLS, compile_field, parse_expression
-from parefg.scene_checks import SignChecks
-from parefg.scene_schema import (
+from parefg.scene.checks import SignChecks
+from parefg.scene.expressions import SYMBOLS, compile_field, parse_expression
+from parefg.scene.schema import (
     BOUNDARY_KEYS,
     CELLS,
     DEFAULT_QUADRATURE,
@@ -50,7 +50,7 @@ from parefg.scene_schema import (
     step_count,
     validate,
 )
-from parefg.symbolic import DerivativeBudget, is_identically_zero
+from parefg.scene.symbolic import DerivativeBudget, is_identically_zero
 
 __all__ = [
     "BOUNDARY_KEYS",
@@ -79,7 +79,7 @@ __all__ = [
     "validate",
 ]
 
-SCENES_DIR = Path(__file__).with_name("scenes")
+SCENES_DIR = Path(__file__).with_name("builtin")
 MAX_SCENE_BYTES = 2**24  # a scene is a few hundred bytes; a long polygon a few hundred KB
 
 Field = Callable[..., np.ndarray]
@@ -93,7 +93,7 @@ class BoundaryCondition:
     -> (2, n)`` (neumann p), ``gap(x, y) -> (n,)`` and ``friction(x, y, t, nx,
     ny) -> (n,)`` (contact s and Tresca bound g); ``friction_is_zero`` is True
     when g is identically zero, so the solver can skip tangential terms;
-    ``friction_law`` names the contact part's law in parefg.friction.FRICTION_LAWS.
+    ``friction_law`` names the contact part's law in parefg.mechanics.friction.FRICTION_LAWS.
     """
 
     name: str

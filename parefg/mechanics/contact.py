@@ -5,7 +5,7 @@ tau_q = (-nu_2, nu_1)) with u_nu = nu . u_h, u_tau = tau . u_h:
 
     normal pressure   p_q = alpha_C (u_nu - s)^+                      (>= 0)
     friction force    f_q = clip(alpha_T (u_tau - xi_q), -g_q, g_q)    (xi: accumulated slip)
-    bound             g_q = g_n(x_q) where the part's friction law acts, else 0 (parefg.friction)
+    bound             g_q = g_n(x_q) where the part's friction law acts, else 0 (mechanics.friction)
     energy            alpha_C/2 ((u_nu - s)^+)^2 + psi(u_tau - xi_q)
     psi(z)            alpha_T z^2/2 for |z| <= g/alpha_T, else g|z| - g^2/(2 alpha_T)
 
@@ -28,9 +28,9 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.assembly import owned_rows, petsc_matrix
-from parefg.friction import FRICTION_LAWS
+from parefg.discretization.assembly import owned_rows, petsc_matrix
 from parefg.guards import DataGuard
+from parefg.mechanics.friction import FRICTION_LAWS
 
 OPEN, STICK, SLIP = 0, 1, 2
 
@@ -124,7 +124,7 @@ class ContactLaw:
     def gate(self, u_predicted: PETSc.Vec) -> None:
         """Fix for the coming step where each part's friction law lets the bound act.
 
-        ``u_predicted`` is the Newmark predictor ut_n; see parefg.friction for why the
+        ``u_predicted`` is the Newmark predictor ut_n; see parefg.mechanics.friction for why the
         gate is decided before the solve (a convex J_n).  Nothing to checkpoint: the
         predictor follows from the checkpointed (u, v, a).
         Call before :meth:`set_time` or after it: both keep bound = g * acting.  Collective.

@@ -1,6 +1,6 @@
 """Statements of the .geo subset: the whitelist grammar (SPEC 9).
 
-:class:`StatementParser` accepts only the statements listed in :mod:`parefg.geo`,
+:class:`StatementParser` accepts only the statements listed in :mod:`parefg.geometry.geo`,
 in gmsh 4.8's syntax (Parser/Gmsh.y), and returns them as :class:`Node` trees;
 anything else is an :class:`InputError` ``line N: why: statement``.  If and For
 blocks must nest properly and close before the end of the file.
@@ -8,9 +8,9 @@ blocks must nest properly and close before the end of the file.
 
 from __future__ import annotations
 
-from parefg.geo.bounds import Node
-from parefg.geo.expressions import SUBSET, ExpressionParser
-from parefg.geo.tokens import COMMAND_NAMES, hides_control_word, is_keyword
+from parefg.geometry.geo.bounds import Node
+from parefg.geometry.geo.expressions import SUBSET, ExpressionParser
+from parefg.geometry.geo.tokens import COMMAND_NAMES, hides_control_word, is_keyword
 
 FACTORIES = ("Built-in", "OpenCASCADE")
 #: entity keyword -> the word that may follow it ("Curve Loop", "Plane Surface")
@@ -137,7 +137,7 @@ class StatementParser(ExpressionParser):
         """``Transfinite Curve|Line {list} = n [Using ...];`` or ``Transfinite Surface {list}``.
 
         A "transfinite" node: gmsh puts n nodes on each curve whatever the mesh sizes,
-        so :mod:`parefg.geo.bounds` bounds the counts; ``{:}`` (every entity, a number
+        so :mod:`parefg.geometry.geo.bounds` bounds the counts; ``{:}`` (every entity, a number
         not known before gmsh runs) is refused.
         """
         kind = self.expect("Curve", "Line", "Surface").text

@@ -9,9 +9,9 @@ import numpy as np
 import sympy
 
 from parefg.errors import InputError
-from parefg.expressions import SYMBOLS
-from parefg.scene_schema import _show, part_segments
-from parefg.symbolic import first_negative
+from parefg.scene.expressions import SYMBOLS
+from parefg.scene.schema import _show, part_segments
+from parefg.scene.symbolic import first_negative
 
 SIGN_SAMPLES = 16  # points per contact part at which gap and friction are checked at load
 SIGN_TIMES = 5  # times in [0, T] at which the friction bound is checked

@@ -4,8 +4,8 @@ Each section is a :class:`_Table`; its reader ``take``s every allowed key with a
 converter, a default and a check, and ``finish`` reports any leftover key as
 unknown.  Errors are one-line :class:`InputError` messages naming the key
 (``scene NAME: section.key = value: what is wrong``).  :func:`validate` returns
-the effective params, defaults written back, that :mod:`parefg.scene` turns into
-a :class:`~parefg.scene.Scene`.
+the effective params, defaults written back, that :mod:`parefg.scene.loader` turns into
+a :class:`~parefg.scene.loader.Scene`.
 """
 
 import copy
@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from parefg.errors import InputError
-from parefg.friction import DEFAULT_FRICTION_LAW, FRICTION_LAWS
-from parefg.geo import load_geo
-from parefg.geometry import BOX_PART_NAMES, Z_EDGE_NAMES, Z_VERTICES, polygon_defect
-from parefg.jitter import MAX_JITTER
+from parefg.geometry.domains import BOX_PART_NAMES, Z_EDGE_NAMES, Z_VERTICES, polygon_defect
+from parefg.geometry.geo import load_geo
+from parefg.geometry.jitter import MAX_JITTER
+from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, FRICTION_LAWS
 
 SECTIONS = (
     "domain",
@@ -390,7 +390,7 @@ def _read_boundaries(where: str, raw, part_names: list[str], has_exact: bool) ->
 
 
 def _read_friction_law(table: _Table, has_exact: bool) -> None:
-    """friction_law: a name of parefg.friction.FRICTION_LAWS, by default "tresca".
+    """friction_law: a name of parefg.mechanics.friction.FRICTION_LAWS, by default "tresca".
 
     When the bound is derived from [exact] (friction not given), the default is "given":
     a manufactured solution such as the square's grazes the obstacle (u_nu = s with

@@ -1,6 +1,6 @@
 """Run a checked .geo program abstractly: bounded loops, bounded lists, safe arithmetic.
 
-:mod:`parefg.geo.statements` parses a .geo file into :class:`Node` trees; this
+:mod:`parefg.geometry.geo.statements` parses a .geo file into :class:`Node` trees; this
 module executes them the way gmsh 4.8 would (Parser/Gmsh.y), but only for what
 decides how much work gmsh will do: the values of numeric variables, the
 iterations of For loops and the lengths of lists.  Values are computed with
@@ -50,7 +50,7 @@ INT_LIMIT = 2**31  # gmsh casts to a C int
 # grids, cheap for gmsh): 1000 x 1000.
 MAX_TRANSFINITE_CURVE_NODES = 20_000
 MAX_TRANSFINITE_SURFACE_NODES = 1_000_000
-MESH_SIZE_MAX = "Mesh.MeshSizeMax"  # the variable holding h (parefg.geo.expressions)
+MESH_SIZE_MAX = "Mesh.MeshSizeMax"  # the variable holding h (parefg.geometry.geo.expressions)
 
 
 def _hypot(a: float, b: float) -> float:
@@ -85,7 +85,7 @@ class Node:
 
     kind: str
     line: int
-    text: object  # the statement, as a str or a parefg.geo.tokens.Span
+    text: object  # the statement, as a str or a parefg.geometry.geo.tokens.Span
     exprs: list = field(default_factory=list)
     lists: list = field(default_factory=list)
     name: str | None = None

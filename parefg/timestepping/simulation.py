@@ -14,13 +14,17 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.assembly import petsc_matrix, with_pattern
-from parefg.contact import ContactLaw
+from parefg.discretization.assembly import petsc_matrix, with_pattern
 from parefg.errors import SolverError
 from parefg.guards import DataGuard, RigidModes, all_finite, require_constraints
+from parefg.mechanics.contact import ContactLaw
 from parefg.profiling import phase
-from parefg.solver import ContactStepSolver, LinearStepSolver, configure_linear_solver
-from parefg.timestepping import State, make_scheme, relative_errors
+from parefg.timestepping.schemes import State, make_scheme, relative_errors
+from parefg.timestepping.step_solver import (
+    ContactStepSolver,
+    LinearStepSolver,
+    configure_linear_solver,
+)
 
 # Energies held by the state; with the external work they balance (see Simulation._record).
 STORED_ENERGIES = ("kinetic_energy", "elastic_energy", "penalty_energy", "dissipated_energy")
@@ -249,7 +253,7 @@ class Simulation:
         return state
 
     def resume(self, state: State, step: int, last_row: dict) -> State:
-        """Continue from a checkpointed state after ``step`` (see parefg.checkpoint)."""
+        """Continue from a checkpointed state after ``step`` (see parefg.io.checkpoint)."""
         t = step * self.scheme.k
         self.external_forces(t, self._last_forces)
         self._spare = None

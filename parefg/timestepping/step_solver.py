@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from parefg.assembly import add_owned_rows
+from parefg.discretization.assembly import add_owned_rows
 from parefg.errors import InputError, SolverError
 
 Reason = PETSc.SNES.ConvergedReason

@@ -4,7 +4,7 @@ Rank 0 builds the domain with the gmsh Python API, meshes it at target spacing
 h and turns the mesh into a :class:`NodeCloud`: the EFG nodes (the mesh
 vertices), the background integration cells (quadrilaterals and/or triangles,
 counter-clockwise) and the boundary segments tagged with the boundary part they
-belong to; optionally its interior nodes are jittered (:mod:`parefg.jitter`).
+belong to; optionally its interior nodes are jittered (:mod:`parefg.geometry.jitter`).
 The cloud is then broadcast, so every rank holds the same arrays.
 
 Each domain shape has one builder, registered by name in ``DOMAIN_BUILDERS``.
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from parefg.errors import InputError
-from parefg.geo import load_geo
+from parefg.geometry.geo import load_geo
 
 # gmsh element type codes of first-order cells.
 GMSH_TRIANGLE, GMSH_QUAD = 2, 3
@@ -109,12 +109,12 @@ def build_node_cloud(
         meshes.
     jitter, seed : float, int
         The scene's ``discretization.jitter`` and ``.seed``: interior nodes move
-        by at most jitter c_I (:func:`parefg.jitter.jitter_cloud`); 0 keeps the mesh nodes.
-    budget : parefg.budget.Budget, optional
+        by at most jitter c_I (:func:`parefg.geometry.jitter.jitter_cloud`); 0 keeps the mesh nodes.
+    budget : parefg.discretization.budget.Budget, optional
         Refuses a .geo domain too large for the machine before gmsh meshes it.
     """
-    # Imported here: parefg.jitter builds on this module's NodeCloud and node_spacing.
-    from parefg.jitter import jitter_cloud
+    # Imported here: parefg.geometry.jitter builds on this module's NodeCloud and node_spacing.
+    from parefg.geometry.jitter import jitter_cloud
 
     cloud, failure = None, None
     if comm.rank == 0:
@@ -193,9 +193,10 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> Nod
     """Build, mesh and extract one domain in this process (not collective).
 
     gmsh never reads stdin here (:func:`_gmsh_initialize`, :func:`_stdin_closed`).  With a
-    ``budget`` (:class:`parefg.budget.Budget`), a .geo domain whose surfaces' bounding boxes
-    (an upper bound of its area) need more than the budget is refused before meshing, and
-    gmsh meshes it no finer than the budget holds (Mesh.MeshSizeMin, :meth:`Budget.size_floor`).
+    ``budget`` (:class:`~parefg.discretization.budget.Budget`), a .geo domain whose surfaces'
+    bounding boxes (an upper bound of its area) need more than the budget is refused before
+    meshing, and gmsh meshes it no finer than the budget holds (Mesh.MeshSizeMin,
+    :meth:`Budget.size_floor`).
     """
     shape = domain.get("shape")
     if shape not in DOMAIN_BUILDERS:
@@ -469,7 +470,7 @@ def _add_polygon_surface(gmsh, vertices, h: float):
 
 
 def _build_from_geo(gmsh, domain: dict, h: float, cells: str):
-    """A user .geo file, checked by :mod:`parefg.geo`: its listed physical curves are the parts.
+    """A user .geo file, checked by :mod:`parefg.geometry.geo`; its physical curves are the parts.
 
     gmsh reads the checked text from a file in a private temporary directory, not
     the user's file: what runs is what was checked, and nothing beside the user's

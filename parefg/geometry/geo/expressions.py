@@ -1,7 +1,7 @@
 """Expressions and lists of the .geo subset: a recursive-descent parser base class.
 
-:class:`ExpressionParser` walks the tokens of :mod:`parefg.geo.tokens` and builds
-the trees that :mod:`parefg.geo.bounds` evaluates: ``("num", v)``, ``("var",
+:class:`ExpressionParser` walks the tokens of :mod:`parefg.geometry.geo.tokens` and builds
+the trees that :mod:`parefg.geometry.geo.bounds` evaluates: ``("num", v)``, ``("var",
 name)``, ``("element", name, index)``, ``("unknown",)`` (a value only gmsh knows:
 ``newp``, ``#a[]``, ``Mesh.MeshSizeMax``), ``("unary-", e)``, ``("call", name,
 args)``, ``("chain", first, [(op, operand), ...])``; lists are ``("items", [...])``
@@ -13,8 +13,8 @@ so no input can exhaust Python's stack.
 from __future__ import annotations
 
 from parefg.errors import InputError
-from parefg.geo.bounds import FUNCTIONS, MESH_SIZE_MAX  # a name no .geo variable has
-from parefg.geo.tokens import COMMAND_NAMES, Span, Token, hides_control_word, is_keyword
+from parefg.geometry.geo.bounds import FUNCTIONS, MESH_SIZE_MAX  # a name no .geo variable has
+from parefg.geometry.geo.tokens import COMMAND_NAMES, Span, Token, hides_control_word, is_keyword
 
 MAX_NESTING = 40  # parentheses, unary operators and If/For blocks inside each other
 MESH_SIZE_OPTIONS = (

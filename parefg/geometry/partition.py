@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from parefg.errors import InputError
-from parefg.geometry import NodeCloud, mesh_edges
+from parefg.geometry.domains import NodeCloud, mesh_edges
 
 
 @dataclass

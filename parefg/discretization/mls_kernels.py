@@ -1,6 +1,6 @@
 """Compiled (numba) MLS kernels: cell-list neighbour search and per-point shape functions.
 
-The mathematics is that of :mod:`parefg.mls` (SPEC 2); this module only changes
+The mathematics is that of :mod:`parefg.discretization.mls` (SPEC 2); this module only changes
 how it is computed.  Per point x the kernel
 
 1. evaluates w_I, dw_I/dx and the scaled shifted basis p_I = p((x_I - x) / R),
@@ -20,7 +20,7 @@ after an edit pays the compilation.
 
 import numpy as np
 
-from parefg.weights import GAUSSIAN_WIDTH
+from parefg.discretization.weights import GAUSSIAN_WIDTH
 
 try:
     import numba
@@ -28,7 +28,8 @@ except ImportError:  # pragma: no cover - numba is a Debian package of the envir
     numba = None
 
 AVAILABLE = numba is not None
-# Weights the compiled kernel knows, by registry name (see parefg.weights); others use numpy.
+# Weights the compiled kernel knows, by registry name (see parefg.discretization.weights);
+# others use numpy.
 WEIGHT_CODES = {"cubic": 0, "quartic": 1, "gaussian": 2}
 
 
@@ -170,7 +171,7 @@ def basis_size(degree):
 def _basis_row(xi, eta, size, row):
     """Pascal basis [xi^a eta^b], ordered by total degree, into row (n_basis,).
 
-    Powers are repeated products, rounded exactly as parefg.mls.pascal_basis rounds them.
+    Powers are repeated products, rounded exactly as mls.pascal_basis rounds them.
     """
     row[0], row[1], row[2] = 1.0, xi, eta
     if len(size) > 3:
@@ -189,7 +190,7 @@ def _cholesky(moment, size, factor):
         for k in range(j):
             pivot -= factor[j, k] * factor[j, k]
         # An exact test, but harmless: a matrix that passes it with a round-off pivot gets
-        # an estimate >= 1/eps, which parefg.mls classifies as singular like a breakdown.
+        # an estimate >= 1/eps, which mls.py classifies as singular like a breakdown.
         if not pivot > 0.0:
             return False
         factor[j, j] = np.sqrt(pivot)

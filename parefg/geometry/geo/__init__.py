@@ -21,11 +21,11 @@ whitelist grammar, before gmsh sees it:
   runs (numbers, and variables assigned numbers earlier).
 
 Everything else is an :class:`InputError` naming the line and the statement
-(:mod:`parefg.geo.statements`).  The accepted statements are then run abstractly
-(:mod:`parefg.geo.bounds`): loop ranges and list lengths are evaluated with gmsh's
+(:mod:`parefg.geometry.geo.statements`).  The accepted statements are then run abstractly
+(:mod:`parefg.geometry.geo.bounds`): loop ranges and list lengths are evaluated with gmsh's
 own arithmetic, and a file whose loops would run more than MAX_LOOP_ITERATIONS times
 in total, or build a list longer than MAX_LIST_LENGTH, is refused.  :func:`load_geo`
-returns the checked tokens rendered as text (:func:`parefg.geo.tokens.render`); that
+returns the checked tokens rendered as text (:func:`parefg.geometry.geo.tokens.render`); that
 text, written to a private temporary file, is what gmsh reads, so what runs is
 exactly what was checked.
 """
@@ -36,9 +36,9 @@ import os
 import stat
 
 from parefg.errors import InputError
-from parefg.geo.bounds import MAX_LIST_LENGTH, MAX_LOOP_ITERATIONS, run_program
-from parefg.geo.statements import StatementParser
-from parefg.geo.tokens import render, tokenize
+from parefg.geometry.geo.bounds import MAX_LIST_LENGTH, MAX_LOOP_ITERATIONS, run_program
+from parefg.geometry.geo.statements import StatementParser
+from parefg.geometry.geo.tokens import render, tokenize
 
 __all__ = [
     "MAX_GEO_BYTES", "MAX_LIST_LENGTH", "MAX_LOOP_ITERATIONS", "load_geo", "read_geo",
@@ -92,14 +92,14 @@ def sanitize_geo(text: str, mesh_size_max: float | None = None) -> str:
     that depends on h is checked later, with h, right before gmsh reads the file).
 
     The result has the same tokens on the same lines, comments removed, one space
-    between tokens (:func:`parefg.geo.tokens.render`).
+    between tokens (:func:`parefg.geometry.geo.tokens.render`).
 
     Raises
     ------
     InputError
         ``line N: what is wrong: the statement`` for the first statement outside the
         subset, an unbounded or too long loop, a too long list, or Transfinite counts
-        that may make too many nodes (:mod:`parefg.geo.bounds`).
+        that may make too many nodes (:mod:`parefg.geometry.geo.bounds`).
     """
     tokens = tokenize(text)
     run_program(StatementParser(tokens).program(), mesh_size_max)

@@ -18,7 +18,7 @@ differentiating: with p_c(y) = p((y - c) / R),
     dphi_I/dx_k = (gamma_k^T p_I) w_I + (gamma^T p_I) dw_I/dx_k.
 
 Two interchangeable backends compute the same numbers (see :data:`BACKENDS`):
-``"numba"`` runs the compiled per-point kernels of :mod:`parefg.mls_kernels`
+``"numba"`` runs the compiled per-point kernels of :mod:`parefg.discretization.mls_kernels`
 (cell-list search, Cholesky of A); ``"numpy"`` is vectorized over points (k-d
 tree search, padded neighbour lists, batched dense linear algebra) and serves
 as the reference and as the fallback when numba or a compiled weight is missing.
@@ -29,9 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from parefg import mls_kernels
+from parefg.discretization import mls_kernels
+from parefg.discretization.weights import get_weight
 from parefg.errors import InputError
-from parefg.weights import get_weight
 
 # Dilations beyond this are advised down, not up, when A(x) is singular with enough neighbours.
 LARGE_SUPPORT = 20.0
@@ -126,7 +126,7 @@ class MLS:
     degree : int
         Degree m of the Pascal basis: 1, 2 or 3.
     weight : str
-        Name of a registered weight (see :data:`parefg.weights.WEIGHTS`).
+        Name of a registered weight (see :data:`parefg.discretization.weights.WEIGHTS`).
     support_factor : float, optional
         The dilation s, only quoted in error messages.
     backend : {"numba", "numpy"}, optional

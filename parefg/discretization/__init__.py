@@ -1,0 +1,6 @@
+"""The EFG discretization: MLS shape functions on the node cloud, their weights, the
+background-cell quadrature, sparse assembly into PETSc matrices, and the size budget.
+
+:mod:`.operators` builds a :class:`~parefg.discretization.operators.Discretization` (mass,
+stiffness, boundary operators) from a scene; everything else here is what it is made of.
+"""
