@@ -210,7 +210,7 @@ def estimate_scene(scene) -> Size | None:
         lx, ly = domain["size"]
         return grid_size(scene, float(lx), float(ly))
     if shape in ("z", "polygon"):
-        from parefg.geometry.domains import Z_VERTICES
+        from parefg.geometry.shapes import Z_VERTICES
 
         vertices = Z_VERTICES if shape == "z" else domain["vertices"]
         return unstructured_size(scene, *_polygon_extent(vertices))
@@ -225,7 +225,7 @@ def cloud_size(scene, cloud) -> Size:
     """
     import numpy as np
 
-    from parefg.geometry.domains import signed_areas
+    from parefg.geometry.cloud import signed_areas
 
     dual_area = np.zeros(cloud.n_nodes)  # (n_nodes,) each cell's area shared by its corners
     alphas = [np.empty(0)]

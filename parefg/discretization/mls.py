@@ -24,6 +24,7 @@ tree search, padded neighbour lists, batched dense linear algebra) and serves
 as the reference and as the fallback when numba or a compiled weight is missing.
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,40 +79,56 @@ class ShapeValues:
     condition: np.ndarray
 
 
-def n_basis(degree: int) -> int:
-    """Number of complete Pascal monomials of total degree <= m in 2D: (m + 1)(m + 2) / 2."""
-    return (degree + 1) * (degree + 2) // 2
+def n_basis(degree: int, dim: int = 2) -> int:
+    """Number of complete Pascal monomials of total degree <= m in d dimensions: C(m + d, d).
+
+    In 2D (m + 1)(m + 2) / 2.
+    """
+    return math.comb(degree + dim, dim)
 
 
-def basis_exponents(degree: int) -> np.ndarray:
-    """Exponents (a, b) of the monomials xi^a eta^b, ordered by total degree.
+def _compositions(total: int, dim: int):
+    """Exponent tuples of ``dim`` entries summing to ``total``, the first entry descending."""
+    if dim == 1:
+        yield (total,)
+        return
+    for first in range(total, -1, -1):
+        for rest in _compositions(total - first, dim - 1):
+            yield (first, *rest)
+
+
+def basis_exponents(degree: int, dim: int = 2) -> np.ndarray:
+    """Exponents of the monomials of total degree <= m, ordered by total degree.
+
+    Within one total degree the first exponent descends: in 2D the rows are (a, b) of
+    xi^a eta^b, row 0 is (0, 0), rows 1 and 2 are (1, 0) and (0, 1), then degree 2, ...
 
     Returns
     -------
-    ndarray of int, shape (n_basis, 2)
-        Row 0 is (0, 0), rows 1 and 2 are (1, 0) and (0, 1), then degree 2, ...
+    ndarray of int, shape (n_basis, dim)
     """
-    return np.array(
-        [(total - b, b) for total in range(degree + 1) for b in range(total + 1)], dtype=int
-    )
+    rows = [row for total in range(degree + 1) for row in _compositions(total, dim)]
+    return np.array(rows, dtype=int).reshape(-1, dim)
 
 
 def pascal_basis(xi: np.ndarray, degree: int) -> np.ndarray:
-    """Complete Pascal basis p(xi) = [xi^a eta^b], a + b <= m, for points xi of shape (..., 2).
+    """Complete Pascal basis p(xi) = [prod_k xi_k^(a_k)], sum a_k <= m, for xi of shape (..., d).
 
     Returns
     -------
-    ndarray, shape (..., n_basis(degree))
+    ndarray, shape (..., n_basis(degree, d))
     """
-    exponents = basis_exponents(degree)
-    # Powers xi^0..xi^m and eta^0..eta^m by repeated products (cheaper than **), (..., m + 1).
-    powers_x = np.empty((*xi.shape[:-1], degree + 1))
-    powers_y = np.empty_like(powers_x)
-    powers_x[..., 0] = powers_y[..., 0] = 1.0
+    dim = xi.shape[-1]
+    exponents = basis_exponents(degree, dim)
+    # Powers xi_k^0..xi_k^m by repeated products (cheaper than **), (d, ..., m + 1).
+    powers = np.empty((dim, *xi.shape[:-1], degree + 1))
+    powers[..., 0] = 1.0
     for power in range(1, degree + 1):
-        powers_x[..., power] = powers_x[..., power - 1] * xi[..., 0]
-        powers_y[..., power] = powers_y[..., power - 1] * xi[..., 1]
-    return powers_x[..., exponents[:, 0]] * powers_y[..., exponents[:, 1]]
+        powers[..., power] = powers[..., power - 1] * np.moveaxis(xi, -1, 0)
+    basis = powers[0][..., exponents[:, 0]]
+    for axis in range(1, dim):
+        basis = basis * powers[axis][..., exponents[:, axis]]
+    return basis
 
 
 class MLS:
@@ -165,7 +182,7 @@ class MLS:
 
     def _choose_backend(self, backend):
         """The backend to use: the requested one, or the first usable one of BACKENDS."""
-        compiled = mls_kernels.AVAILABLE and self.weight.name in mls_kernels.WEIGHT_CODES
+        compiled = mls_kernels.AVAILABLE and self.weight.code is not None
         if backend is None:
             return "numba" if compiled else "numpy"
         if backend not in BACKENDS:
@@ -343,7 +360,7 @@ class MLS:
             points,
             self.nodes,
             self.support_radius,
-            mls_kernels.WEIGHT_CODES[self.weight.name],
+            self.weight.code,
             mls_kernels.basis_size(self.degree),
             neighbours,
             mask,
