@@ -202,18 +202,14 @@ def estimate_scene(scene) -> Size | None:
     A .geo domain's area is known only once gmsh has read the file
     (:meth:`Budget.check_extent`).  Not collective; pure arithmetic on the scene.
     """
-    domain = scene.domain
-    shape = domain["shape"]
-    if shape == "square":
-        return grid_size(scene, 1.0, 1.0)
-    if shape == "rectangle":
-        lx, ly = domain["size"]
-        return grid_size(scene, float(lx), float(ly))
-    if shape in ("z", "polygon"):
-        from parefg.geometry.shapes import Z_VERTICES
+    from parefg.geometry.shapes import SHAPES
 
-        vertices = Z_VERTICES if shape == "z" else domain["vertices"]
-        return unstructured_size(scene, *_polygon_extent(vertices))
+    shape = SHAPES[scene.domain["shape"]]
+    if shape.box is not None:  # a structured grid
+        _, (lx, ly) = shape.box(scene.domain)
+        return grid_size(scene, float(lx), float(ly))
+    if shape.outline is not None:
+        return unstructured_size(scene, *_polygon_extent(shape.outline(scene.domain)[0]))
     return None
 
 

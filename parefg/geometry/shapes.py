@@ -66,6 +66,9 @@ class Shape:
     parts : tuple of str or None
         Its boundary part names in the order a scene lists them; None: the distinct
         edge names of the outline in edge order, or a .geo domain's ``parts``.
+    box : callable or None
+        domain -> (origin, size) of a rectangle meshed as a structured grid; None for
+        the other shapes.
     """
 
     name: str
@@ -74,6 +77,7 @@ class Shape:
     outline: Callable[[dict], Outline] | None = None
     check: Callable[[dict], tuple[str, str] | None] | None = None
     parts: tuple[str, ...] | None = None
+    box: Callable[[dict], tuple[Sequence[float], Sequence[float]]] | None = None
 
 
 def _unit_box(domain: dict) -> tuple[Sequence[float], Sequence[float]]:
@@ -96,7 +100,7 @@ def _box_shape(name: str, box, keys: tuple[str, ...]) -> Shape:
     def build(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
         return _build_box(gmsh, *box(domain), h, cells)
 
-    return Shape(name, build, keys, outline)
+    return Shape(name, build, keys, outline, box=box)
 
 
 def _build_box(gmsh, origin, size, h: float, cells: str) -> GmshDomain:
