@@ -31,8 +31,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from parefg.discretization import mls_kernels
-from parefg.discretization.weights import get_weight
+from parefg.discretization.weights import DEFAULT_WEIGHT, get_weight
 from parefg.errors import InputError
+from parefg.geometry.cloud import DIM
 
 # Dilations beyond this are advised down, not up, when A(x) is singular with enough neighbours.
 LARGE_SUPPORT = 20.0
@@ -156,13 +157,13 @@ class MLS:
         nodes,
         support_radius,
         degree: int,
-        weight: str = "cubic",
+        weight: str = DEFAULT_WEIGHT,
         support_factor: float | None = None,
         backend: str | None = None,
     ):
         if degree not in (1, 2, 3):
             raise InputError(f"discretization.degree: must be 1, 2 or 3, got {degree!r}")
-        self.nodes = np.ascontiguousarray(nodes, dtype=float).reshape(-1, 2)  # (n_nodes, 2)
+        self.nodes = np.ascontiguousarray(nodes, dtype=float).reshape(-1, DIM)  # (n_nodes, d)
         self.support_radius = np.broadcast_to(
             np.asarray(support_radius, dtype=float), (len(self.nodes),)
         ).copy()  # (n_nodes,)
@@ -203,12 +204,12 @@ class MLS:
             At the first point whose moment matrix has fewer neighbours than basis
             terms or a condition number above ``MAX_CONDITION``.
         """
-        points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)  # (n_points, 2)
+        points = np.ascontiguousarray(points, dtype=float).reshape(-1, DIM)  # (n_points, d)
         neighbours, mask = self.find_neighbours(points) if neighbours is None else neighbours
         if self.backend == "numba":
             return self._evaluate_compiled(points, neighbours, mask, gradients)
         phi = np.zeros(neighbours.shape)  # (n_points, n_max)
-        dphi = np.zeros((*neighbours.shape, 2)) if gradients else None  # (n_points, n_max, 2)
+        dphi = np.zeros((*neighbours.shape, DIM)) if gradients else None  # (n_points, n_max, d)
         condition = np.zeros(len(points))  # (n_points,)
         for start in range(0, len(points), CHUNK_POINTS):
             chunk = slice(start, start + CHUNK_POINTS)
@@ -392,8 +393,8 @@ class MLS:
         phi = w * basis_gamma
         if not gradients:
             return phi, None, condition
-        dphi = np.empty((*phi.shape, 2))  # (n, n_max, 2)
-        for k in range(2):
+        dphi = np.empty((*phi.shape, DIM))  # (n, n_max, d)
+        for k in range(DIM):
             moment_k = (basis_t * dw[:, None, :, k]) @ basis  # (n, n_basis, n_basis) A_k
             # A gamma_k = dp/dxi_k(0) / R - A_k gamma; dp/dxi_k(0) = e_{1+k}.
             rhs = -np.einsum("nij,nj->ni", moment_k, gamma)

@@ -37,6 +37,8 @@ from parefg.geometry.shapes import SHAPES, GmshDomain
 GMSH_TRIANGLE, GMSH_QUAD = 2, 3
 # Boundary segments on no listed part (traction-free, kept for output).
 FREE_PART = "_free"
+#: background cell types (``discretization.cells``): recombined quadrilaterals, triangles
+CELL_TYPES = ("quad", "tri")
 
 
 def build_node_cloud(
@@ -153,14 +155,13 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> Nod
     meshing, and gmsh meshes it no finer than the budget holds (Mesh.MeshSizeMin,
     :meth:`Budget.size_floor`).
     """
-    shape = SHAPES.get(domain.get("shape")) if isinstance(domain.get("shape"), str) else None
+    name = domain.get("shape")
+    shape = SHAPES.get(name) if isinstance(name, str) else None
     if shape is None:
-        raise InputError(
-            f"domain.shape: unknown shape {domain.get('shape')!r}; allowed: {sorted(SHAPES)}"
-        )
+        raise InputError(f"domain.shape: unknown shape {name!r}; allowed: {sorted(SHAPES)}")
     if not (isinstance(h, int | float | np.number) and math.isfinite(h) and h > 0):
         raise InputError(f"discretization.h: must be a positive number, got {h!r}")
-    if cells not in ("quad", "tri"):
+    if cells not in CELL_TYPES:
         raise InputError(f"cells: must be 'quad' or 'tri', got {cells!r}")
     import gmsh  # imported lazily: only rank 0 meshes
 

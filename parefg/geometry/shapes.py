@@ -98,7 +98,8 @@ def _box_shape(name: str, box, keys: tuple[str, ...]) -> Shape:
         return [(x0, y0), (x0 + lx, y0), (x0 + lx, y0 + ly), (x0, y0 + ly)], BOX_PART_NAMES
 
     def build(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
-        return _build_box(gmsh, *box(domain), h, cells)
+        origin, size = box(domain)
+        return _build_box(gmsh, origin, size, h, cells)
 
     return Shape(name, build, keys, outline, box=box)
 

@@ -21,6 +21,7 @@ from parefg.boundary import BoundaryKind
 from parefg.discretization.weights import DEFAULT_WEIGHT, WEIGHTS
 from parefg.errors import InputError
 from parefg.geometry.geo import load_geo
+from parefg.geometry.gmsh_mesh import CELL_TYPES
 from parefg.geometry.jitter import MAX_JITTER
 from parefg.geometry.shapes import DEFAULT_SHAPE, SHAPES, domain_part_names
 from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, FRICTION_LAWS
@@ -63,7 +64,6 @@ PLAIN_NAME_RULE = (
     "a plain name: letters, digits, '.', '_', '-', not starting with '.' or '-', "
     "at most 100 characters"
 )
-CELLS = ("quad", "tri")
 DEFAULT_SCHEME = next(iter(SCHEMES))
 OUTPUT_FIELDS = ("u", "v", "a", "von_mises", "contact")
 OUTPUT_FRAMES = 50  # default time series: about this many output steps per run
@@ -126,7 +126,7 @@ def _read_discretization(table: Table) -> None:
     table.take("weight", one_of(*WEIGHTS), DEFAULT_WEIGHT)
     table.take("support", as_number, DEFAULT_SUPPORT[degree], (lambda v: v > 1, "must be > 1"))
     table.take("quadrature", as_integer, DEFAULT_QUADRATURE.get(degree, 5), between(1, 10))
-    table.take("cells", one_of(*CELLS), "quad")
+    table.take("cells", one_of(*CELL_TYPES), CELL_TYPES[0])
     # Absent stays absent (no jitter): the effective scene of an unjittered run is unchanged.
     table.take("jitter", as_number, None, between(0.0, MAX_JITTER))
     table.take("seed", as_integer, None, (lambda v: 0 <= v < 2**63, "must be in 0..2**63 - 1"))
