@@ -142,8 +142,11 @@ def _polygon_extent(vertices) -> tuple[float, float]:
 
 
 def _padding(scene) -> float:
-    """n_max / mean neighbours: structured grids for "square" and "rectangle"."""
-    return PADDING["grid" if scene.domain["shape"] in ("square", "rectangle") else "unstructured"]
+    """n_max / mean neighbours: structured grids for the box shapes (Shape.box)."""
+    from parefg.geometry.shapes import SHAPES
+
+    structured = SHAPES[scene.domain["shape"]].box is not None
+    return PADDING["grid" if structured else "unstructured"]
 
 
 def _size(scene, n_nodes, n_cells, n_segments, kappa: float, alpha: float) -> Size:

@@ -1,9 +1,10 @@
 """Polygon checks: simple (no crossing, touching or folded edges) and counter-clockwise.
 
 One gate for every polygon a scene may give (``[domain] shape = "polygon"``) and for the
-built-in outlines: the scene schema calls :func:`polygon_problem` before anything is
-created, and the gmsh builder calls it again before gmsh sees the points (gmsh aborts
-the process on a self-intersecting outline).  Not collective.
+built-in outlines: the polygon shape's check (:data:`parefg.geometry.shapes.SHAPES`) calls
+:func:`polygon_problem` when the scene is validated, before anything is created, and the
+gmsh builder calls it again before gmsh sees the points (gmsh aborts the process on a
+self-intersecting outline).  Not collective.
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ import sympy
 
 from parefg.boundary import BoundaryKind
 from parefg.errors import InputError
+from parefg.mechanics.friction import DEFAULT_FRICTION_LAW
 from parefg.scene.expressions import SYMBOLS, compile_field, parse_expression
 from parefg.scene.symbolic import is_identically_zero
 
@@ -39,7 +40,7 @@ class BoundaryCondition:
     gap: Field | None = None
     friction: Field | None = None
     friction_is_zero: bool = True
-    friction_law: str = "tresca"
+    friction_law: str = DEFAULT_FRICTION_LAW
 
 
 def scene_expression(where: str, key: str, value, args=("x", "y", "t")) -> sympy.Expr:
@@ -57,44 +58,44 @@ def scene_expressions(where: str, key: str, values: list, args=("x", "y", "t")) 
     return [scene_expression(where, f"{key}[{i}]", value, args) for i, value in enumerate(values)]
 
 
-def vector_field(where, key, values, mechanics, derived_key, args=("x", "y", "t")) -> Field:
+def vector_field(where, key, values, manufactured, derived_key, args=("x", "y", "t")) -> Field:
     """The given expressions, or the ones derived from the exact solution."""
     exprs = scene_expressions(where, key, values, args) if values is not None else None
     if exprs is None:
-        exprs = mechanics.derived[derived_key]
+        exprs = manufactured.derived[derived_key]
     return compile_field(exprs, args)
 
 
-def initial_field(where: str, key: str, values, mechanics) -> Field:
+def initial_field(where: str, key: str, values, manufactured) -> Field:
     """u0 or v0 as a function of (x, y); a given t is read as t = 0."""
     t = SYMBOLS["t"]
     if values is not None:
         exprs = [e.subs(t, 0) for e in scene_expressions(where, f"initial.{key}", values)]
     else:
-        exprs = mechanics.derived[key]
+        exprs = manufactured.derived[key]
     return compile_field(exprs, ("x", "y"))
 
 
 WITH_NORMAL = ("x", "y", "t", "nx", "ny")  # arguments of data that depend on the normal
 
 
-def _dirichlet(where: str, name: str, table: dict, mechanics, checks) -> BoundaryCondition:
+def _dirichlet(where: str, name: str, table: dict, manufactured, checks) -> BoundaryCondition:
     """ubar(x, y, t): given, or u of the exact solution."""
     prefix = f"boundary.{name}"
-    value = vector_field(where, f"{prefix}.value", table.get("value"), mechanics, "value")
+    value = vector_field(where, f"{prefix}.value", table.get("value"), manufactured, "value")
     return BoundaryCondition(name, BoundaryKind.DIRICHLET, value=value)
 
 
-def _neumann(where: str, name: str, table: dict, mechanics, checks) -> BoundaryCondition:
+def _neumann(where: str, name: str, table: dict, manufactured, checks) -> BoundaryCondition:
     """p(x, y, t, nx, ny): given, or sigma n of the exact solution."""
     prefix = f"boundary.{name}"
     traction = vector_field(
-        where, f"{prefix}.traction", table.get("traction"), mechanics, "traction", WITH_NORMAL
+        where, f"{prefix}.traction", table.get("traction"), manufactured, "traction", WITH_NORMAL
     )
     return BoundaryCondition(name, BoundaryKind.NEUMANN, traction=traction)
 
 
-def _contact(where: str, name: str, table: dict, mechanics, checks) -> BoundaryCondition:
+def _contact(where: str, name: str, table: dict, manufactured, checks) -> BoundaryCondition:
     """Gap s(x, y) >= 0 and Tresca bound g >= 0: given, or |tau . sigma n| of the exact one."""
     prefix = f"boundary.{name}"
     gap_expr = scene_expression(where, f"{prefix}.gap", table["gap"], ("x", "y"))
@@ -105,7 +106,7 @@ def _contact(where: str, name: str, table: dict, mechanics, checks) -> BoundaryC
         friction = [scene_expression(where, f"{prefix}.friction", given)]
         checks.nonnegative(name, "friction", given, friction[0])
     else:  # |tau . sigma n| >= 0
-        friction = mechanics.derived["friction"]
+        friction = manufactured.derived["friction"]
     friction_field = compile_field(friction, WITH_NORMAL)
     return BoundaryCondition(
         name,
@@ -126,10 +127,12 @@ BOUNDARY_BUILDERS = {
 }
 
 
-def boundary_condition(where: str, name: str, table: dict, mechanics, checks) -> BoundaryCondition:
+def boundary_condition(
+    where: str, name: str, table: dict, manufactured, checks
+) -> BoundaryCondition:
     """BoundaryCondition of one validated [boundary.NAME] table.
 
-    ``mechanics`` is the scene's ManufacturedSolution (None without [exact]); ``checks``
+    ``manufactured`` is the scene's ManufacturedSolution (None without [exact]); ``checks``
     its :class:`~parefg.scene.checks.SignChecks`.
     """
-    return BOUNDARY_BUILDERS[BoundaryKind(table["type"])](where, name, table, mechanics, checks)
+    return BOUNDARY_BUILDERS[BoundaryKind(table["type"])](where, name, table, manufactured, checks)

@@ -181,12 +181,12 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
     discretization, time = params["discretization"], params["time"]
     E, nu, lam, mu = elastic_constants(params["material"])
     rho = params["material"]["rho"]
-    mechanics = None
+    manufactured = None
     if "exact" in params:
         exact_u = scene_expressions(where, "exact.u", params["exact"]["u"])
-        budget = DerivativeBudget(where, "exact.u")
+        derivatives = DerivativeBudget(where, "exact.u")
         dynamic = SCHEMES[time["scheme"]].dynamic
-        mechanics = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, budget)
+        manufactured = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
     checks = SignChecks(where, params, E)
     return Scene(
         name=params["name"],
@@ -206,13 +206,13 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         n_steps=step_count(where, time),
         **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS},
         boundaries={
-            name: boundary_condition(where, name, table, mechanics, checks)
+            name: boundary_condition(where, name, table, manufactured, checks)
             for name, table in params.get("boundary", {}).items()
         },
-        body_force=vector_field(where, "loads.f", params["loads"].get("f"), mechanics, "f"),
-        initial_u=initial_field(where, "u", params["initial"].get("u"), mechanics),
-        initial_v=initial_field(where, "v", params["initial"].get("v"), mechanics),
-        exact=mechanics.solution() if mechanics else None,
+        body_force=vector_field(where, "loads.f", params["loads"].get("f"), manufactured, "f"),
+        initial_u=initial_field(where, "u", params["initial"].get("u"), manufactured),
+        initial_v=initial_field(where, "v", params["initial"].get("v"), manufactured),
+        exact=manufactured.solution() if manufactured else None,
         output_every=params["output"]["every"],
         output_fields=list(params["output"]["fields"]),
         solver_options=dict(params["solver"]),
