@@ -22,7 +22,7 @@ from parefg.io.observers import CheckpointObserver, ResultsObserver
 from parefg.io.output import ResultWriter
 from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
 from parefg.profiling import factorization_stats, phase, start_logging
-from parefg.timestepping.loop import Callback, time_loop
+from parefg.timestepping.loop import Callback, Observer, time_loop
 from parefg.timestepping.simulation import Simulation
 
 
@@ -210,7 +210,7 @@ def _run(
     results = ResultsObserver(writer)
     if restart is None:
         results.write_initial(sim, state)
-    loop_observers = [results]
+    loop_observers: list[Observer] = [results]
     if checkpoint_every > 0:
         loop_observers.append(CheckpointObserver(out_dir / "checkpoint.h5", checkpoint_every))
     loop_observers += [Progress(comm, scene.n_steps, quiet, first)]
