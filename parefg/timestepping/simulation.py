@@ -229,56 +229,65 @@ class Simulation:
         return State(u=u, v=v, a=a)
 
     def _elliptic_projection(self, u: PETSc.Vec) -> None:
-        """u (overwritten) = P u0, the elliptic projection of u0 for the penalty operator.
+        """u (overwritten; the guess) = P u0, the elliptic projection of u0 for the penalty
+        operator, contact included:
 
-        (K + alpha_D G_D) P u0 = -int div sigma(u0) . phi + int_{Gamma_N} sigma(u0) nu . phi
-                                 + alpha_D int_{Gamma_D} u0 . phi.
-        For data compatible with u0 (p = sigma(u0) nu, ubar(0) = u0 on Gamma_D) the t = 0
-        balance then gives M a_0 = int (f(0) + div sigma(u0)) . phi = int rho u''(0) . phi,
-        the L2 projection of the true acceleration: a time-independent solution starts at
-        the discrete equilibrium and stays there, where the L2 projection of u0 would excite
-        the stiff penalty modes at Gamma_D (an undamped period-2 oscillation with beta = 1/2).
-        Incompatible data go into a_0, not into u_0 (the load terms use u0, not the data).
-        Baker (1976) and Dupont (1973) start the second-order hyperbolic Galerkin scheme the
-        same way for optimal error bounds.  Collective; one extra factorization per run.
+            (K + alpha_D G_D) P u0 + C(P u0) = -int div sigma(u0) . phi
+                + int_{Gamma_N} sigma(u0) nu . phi + alpha_D int_{Gamma_D} u0 . phi,
+
+        C the frictionless penalty contact force (friction carries no force at t = 0, where
+        xi_0 = u_tau(0)).  For data compatible with u0 (p = sigma(u0) nu, ubar(0) = u0 on
+        Gamma_D, Gamma_C pressed by its own traction) the t = 0 balance then gives
+        M a_0 = int (f(0) + div sigma(u0)) . phi = int rho u''(0) . phi, the L2 projection of
+        the true acceleration: a time-independent solution starts at the discrete
+        equilibrium and stays there, where the L2 projection of u0 excites the stiff
+        penalty modes (an undamped period-2 oscillation with beta = 1/2).  Incompatible data
+        go into a_0, not into u_0 (the right-hand side uses u0, not the data).  Baker (1976)
+        and Dupont (1973) start Galerkin schemes for second-order hyperbolic problems with
+        this projection for their optimal error bounds.  Collective; one factorization more.
         """
+        rhs = self._projection_rhs()
+        owned = self.disc.owned
+        matrix = (owned["stiffness"] + self.scene.alpha_dirichlet * owned["dirichlet"]).tocsr()
+        if self.law is not None:
+            matrix = with_pattern(matrix, self.disc.contact_pattern)
+        operator = petsc_matrix(self.comm, matrix, matrix.shape[0], self.disc.n_dofs, block_size=2)
+        operator.setOption(PETSc.Mat.Option.SPD, True)
+        operator.setNearNullSpace(self._rigid_body_modes(operator))
+        if self.law is None:
+            solver = LinearStepSolver(self.comm, operator)
+        else:
+            solver = ContactStepSolver(self.comm, operator, self.law)  # bound still 0
+        try:
+            solver.solve(rhs, u, 0.0)
+        except SolverError as error:
+            raise SolverError(f"initial elliptic projection of initial.u: {error}") from None
+        finally:
+            for obj in (getattr(solver, "snes", None), getattr(solver, "ksp", None), operator, rhs):
+                if obj is not None:
+                    obj.destroy()
+
+    def _projection_rhs(self) -> PETSc.Vec:
+        """The right-hand side of :meth:`_elliptic_projection` (a new vector).  Collective."""
         scene, disc, part = self.scene, self.disc, self._part
         rhs = disc.create_vec()
-        x, y = disc.domain.points.T
-        div = self.guard.evaluate(
-            ("initial", "u"), scene.initial_div_stress, disc.domain.points, 0.0, x, y
-        )  # (2, n_q)
+        points = disc.domain.points
+        x, y = points.T
+        key = ("initial", "u")
+        div = self.guard.evaluate(key, scene.initial_div_stress, points, 0.0, x, y)  # (2, n_q)
         disc.domain.integrate(-div.T, rhs)
         for name in self.neumann_names:
-            points = disc.boundary[name]
-            points.integrate(self._initial_traction(points), part)
+            boundary = disc.boundary[name]
+            boundary.integrate(self._initial_traction(boundary), part)
             rhs.axpy(1.0, part)
         for name in self.dirichlet_names:
-            points = disc.boundary[name]
-            x, y = points.points.T
-            trace = self.guard.evaluate(("initial", "u"), scene.initial_u, points.points, 0.0, x, y)
-            points.integrate(trace.T, part)
+            boundary = disc.boundary[name]
+            x, y = boundary.points.T
+            trace = self.guard.evaluate(key, scene.initial_u, boundary.points, 0.0, x, y)
+            boundary.integrate(trace.T, part)
             rhs.axpy(scene.alpha_dirichlet, part)
         self.guard.check()
-        owned = disc.owned
-        matrix = (owned["stiffness"] + scene.alpha_dirichlet * owned["dirichlet"]).tocsr()
-        operator = petsc_matrix(self.comm, matrix, matrix.shape[0], disc.n_dofs, block_size=2)
-        operator.setOption(PETSc.Mat.Option.SPD, True)
-        ksp = PETSc.KSP().create(self.comm)
-        ksp.setOptionsPrefix("initial_")  # -initial_ksp_type / -initial_pc_type override
-        ksp.setOperators(operator)
-        configure_linear_solver(ksp)
-        ksp.setFromOptions()
-        try:
-            ksp.solve(rhs, u)
-            if ksp.getConvergedReason() < 0:
-                raise SolverError(
-                    f"initial elliptic projection failed: KSP reason {ksp.getConvergedReason()}"
-                )
-        finally:
-            ksp.destroy()
-            operator.destroy()
-            rhs.destroy()
+        return rhs
 
     def _initial_traction(self, points) -> np.ndarray:
         """sigma(u0) nu at boundary ``points``, (n, 2); checked by the guard."""
