@@ -321,3 +321,24 @@ def test_generalized_alpha_one_rank_equals_two_ranks(tmp_path):
         one, two = serial["errors"][norm], parallel["errors"][norm]
         assert 0 < one < 0.05
         assert two == pytest.approx(one, rel=1e-8, abs=0), norm
+
+
+@pytest.mark.serial_only
+def test_generalized_alpha_restart_equals_uninterrupted_run(tmp_path):
+    """The previous level's forces are recomputed from the checkpointed u, v, a and slip:
+    a restart at step 5 of 10 gives the errors of the uninterrupted run (measured: equal)."""
+    common = [GENERALIZED_ALPHA, "time.rho_inf=0.5", "time.dt=0.1", "discretization.h=0.125"]
+
+    def cli(out, *extra, overrides=()):
+        args = ["run", "square", "--out", str(tmp_path / out), "--quiet", *extra]
+        for text in [*common, *overrides]:
+            args += ["--set", text]
+        result = run_parefg(args)
+        assert result.returncode == 0, result.stderr
+        return json.loads((tmp_path / out / "summary.json").read_text())
+
+    full = cli("full")
+    cli("half", "--checkpoint-every", "5", overrides=["time.T=0.5"])
+    restarted = cli("restarted", "--restart", str(tmp_path / "half" / "checkpoint.h5"))
+    for norm in ("l2_rel", "h1_rel"):
+        assert restarted["errors"][norm] == pytest.approx(full["errors"][norm], rel=1e-12)
