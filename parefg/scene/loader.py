@@ -282,6 +282,9 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         budget = DerivativeBudget(where, "exact.u")
         mechanics = _Mechanics(exact_u, lam, mu, rho, time["scheme"], budget)
     checks = SignChecks(where, params, E)
+    initial_grad, initial_div_stress = _initial_elasticity(
+        where, params["initial"].get("u"), mechanics, lam, mu, rho
+    )
     return Scene(
         name=params["name"],
         params=params,
@@ -307,7 +310,8 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         body_force=_vector_field(where, "loads.f", params["loads"].get("f"), mechanics, "f"),
         initial_u=_initial(where, "u", params["initial"].get("u"), mechanics),
         initial_v=_initial(where, "v", params["initial"].get("v"), mechanics),
-        **_initial_elasticity(where, params["initial"].get("u"), mechanics, lam, mu, rho),
+        initial_grad=initial_grad,
+        initial_div_stress=initial_div_stress,
         exact=mechanics.solution() if mechanics else None,
         output_every=params["output"]["every"],
         output_fields=list(params["output"]["fields"]),
@@ -389,7 +393,9 @@ def _initial(where: str, key: str, values, mechanics) -> Field:
     return compile_field(exprs, ("x", "y"))
 
 
-def _initial_elasticity(where: str, values, mechanics, lam, mu, rho) -> dict[str, Field | None]:
+def _initial_elasticity(
+    where: str, values, mechanics, lam, mu, rho
+) -> tuple[Field | None, Field | None]:
     """grad u0 and div sigma(u0) as functions of (x, y), for the consistent start.
 
     Both None when u0 vanishes identically (decided on the expressions, not on floats).
@@ -400,7 +406,7 @@ def _initial_elasticity(where: str, values, mechanics, lam, mu, rho) -> dict[str
     else:
         exprs = mechanics.derived["u"]
     if all(is_identically_zero(e, [x, y]) for e in exprs):
-        return {"initial_grad": None, "initial_div_stress": None}
+        return None, None
     initial = _Mechanics(exprs, lam, mu, rho, "static", DerivativeBudget(where, "initial.u"))
     gradient = compile_field([initial.grad[i, j] for i in range(2) for j in range(2)], ("x", "y"))
 
@@ -408,10 +414,7 @@ def _initial_elasticity(where: str, values, mechanics, lam, mu, rho) -> dict[str
         rows = gradient(x, y)  # (4, n), row 2 i + j = d u0_i / d x_j
         return rows.reshape(2, 2, *rows.shape[1:])
 
-    return {
-        "initial_grad": grad,
-        "initial_div_stress": compile_field(initial.div_sigma, ("x", "y")),
-    }
+    return grad, compile_field(initial.div_sigma, ("x", "y"))
 
 
 def _boundary(where: str, name: str, table: dict, mechanics, checks) -> BoundaryCondition:

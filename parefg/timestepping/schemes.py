@@ -39,7 +39,9 @@ class NewmarkScheme:
 
     name = "newmark"
     dynamic = True
-    history = None  # the step's balance is at t_n alone: nothing of the previous level
+    # (w_a, w_r): b_n -= w_a M a_{n-1} + w_r r_{n-1}, the previous level's share of the
+    # step; None: the balance is at t_n alone (Newmark)
+    history: tuple[float, float] | None = None
 
     def __init__(self, scene):
         self.k, self.beta, self.gamma = scene.dt, scene.beta, scene.gamma
@@ -115,16 +117,12 @@ class GeneralizedAlphaScheme(NewmarkScheme):
         parameters = generalized_alpha_parameters(self.rho_inf)
         self.alpha_m, self.alpha_f = parameters["alpha_m"], parameters["alpha_f"]
         self.beta, self.gamma = parameters["beta"], parameters["gamma"]
+        scale = 1.0 / (1.0 - self.alpha_f)
+        self.history = (self.alpha_m * scale, self.alpha_f * scale)
 
     @property
     def mass_coefficient(self) -> float:
         return (1.0 - self.alpha_m) / ((1.0 - self.alpha_f) * self.beta * self.k**2)
-
-    @property
-    def history(self) -> tuple[float, float]:
-        """(w_a, w_r): b_n -= w_a M a_{n-1} + w_r r_{n-1}, the previous level's share."""
-        scale = 1.0 / (1.0 - self.alpha_f)
-        return self.alpha_m * scale, self.alpha_f * scale
 
 
 class StaticScheme:
@@ -133,7 +131,7 @@ class StaticScheme:
     name = "static"
     dynamic = False
     mass_coefficient = 0.0
-    history = None
+    history: tuple[float, float] | None = None
 
     def __init__(self, scene):
         self.k = scene.dt

@@ -254,6 +254,7 @@ class Simulation:
         operator = petsc_matrix(self.comm, matrix, matrix.shape[0], self.disc.n_dofs, block_size=2)
         operator.setOption(PETSc.Mat.Option.SPD, True)
         operator.setNearNullSpace(self._rigid_body_modes(operator))
+        solver: LinearStepSolver | ContactStepSolver
         if self.law is None:
             solver = LinearStepSolver(self.comm, operator)
         else:
@@ -407,10 +408,10 @@ class Simulation:
         self.disc.dirichlet.mult(state.u, work)
         force.axpy(self.scene.alpha_dirichlet, work)
         if self.law is not None:
-            self._add_level_contact_force(state.u, force)
+            self._add_level_contact_force(self.law, state.u, force)
         b.axpy(-force_weight, force)
 
-    def _add_level_contact_force(self, u: PETSc.Vec, out: PETSc.Vec) -> None:
+    def _add_level_contact_force(self, law: ContactLaw, u: PETSc.Vec, out: PETSc.Vec) -> None:
         """out += C(u): the contact and friction force the last step balanced at u = u_{n-1}.
 
         The one place generalized-alpha evaluates the contact force of a level (the new
@@ -419,7 +420,7 @@ class Simulation:
         force alpha_T (u_tau - xi_{n-1}) is the last step's (the return mapping left it
         inside the bound).  Collective.
         """
-        self.law.add_residual(out, *self.law.kinematics(u))
+        law.add_residual(out, *law.kinematics(u))
 
     def _next_level(self, state: State) -> State:
         """The buffers of the new level: the spare one, unless it is ``state`` itself."""
