@@ -144,6 +144,7 @@ class Scene:
     dt: float
     beta: float
     gamma: float
+    rho_inf: float | None
     n_steps: int
     alpha_dirichlet: float
     alpha_contact: float
@@ -152,6 +153,9 @@ class Scene:
     body_force: Field
     initial_u: Field
     initial_v: Field
+    # grad u0 (x, y) -> (2, 2, n) and div sigma(u0) (x, y) -> (2, n); None where u0 = 0
+    initial_grad: Field | None
+    initial_div_stress: Field | None
     exact: ExactSolution | None
     output_every: int
     output_fields: list[str]
@@ -278,6 +282,9 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         budget = DerivativeBudget(where, "exact.u")
         mechanics = _Mechanics(exact_u, lam, mu, rho, time["scheme"], budget)
     checks = SignChecks(where, params, E)
+    initial_grad, initial_div_stress = _initial_elasticity(
+        where, params["initial"].get("u"), mechanics, lam, mu, rho
+    )
     return Scene(
         name=params["name"],
         params=params,
@@ -293,6 +300,7 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         mu=mu,
         rho=rho,
         **{key: time[key] for key in ("scheme", "T", "dt", "beta", "gamma")},
+        rho_inf=time.get("rho_inf"),
         n_steps=step_count(where, time),
         **{f"alpha_{kind}": penalty[f"alpha_{kind}"] for kind in PENALTY_KINDS},
         boundaries={
@@ -302,6 +310,8 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         body_force=_vector_field(where, "loads.f", params["loads"].get("f"), mechanics, "f"),
         initial_u=_initial(where, "u", params["initial"].get("u"), mechanics),
         initial_v=_initial(where, "v", params["initial"].get("v"), mechanics),
+        initial_grad=initial_grad,
+        initial_div_stress=initial_div_stress,
         exact=mechanics.solution() if mechanics else None,
         output_every=params["output"]["every"],
         output_fields=list(params["output"]["fields"]),
@@ -333,6 +343,7 @@ class _Mechanics:
         eps = (self.grad + self.grad.T) / 2
         sigma = sympy.Float(lam) * eps.trace() * sympy.eye(2) + 2 * sympy.Float(mu) * eps
         div_sigma = [diff(sigma[i, 0], x) + diff(sigma[i, 1], y) for i in range(2)]
+        self.div_sigma = div_sigma
         inertia = [sympy.Float(rho) * diff(vi, t) for vi in self.velocity]
         if scheme == "static":
             inertia = [0, 0]
@@ -380,6 +391,30 @@ def _initial(where: str, key: str, values, mechanics) -> Field:
     else:
         exprs = mechanics.derived[key]
     return compile_field(exprs, ("x", "y"))
+
+
+def _initial_elasticity(
+    where: str, values, mechanics, lam, mu, rho
+) -> tuple[Field | None, Field | None]:
+    """grad u0 and div sigma(u0) as functions of (x, y), for the consistent start.
+
+    Both None when u0 vanishes identically (decided on the expressions, not on floats).
+    """
+    x, y, t = (SYMBOLS[s] for s in ("x", "y", "t"))
+    if values is not None:
+        exprs = [e.subs(t, 0) for e in _fields(where, "initial.u", values)]
+    else:
+        exprs = mechanics.derived["u"]
+    if all(is_identically_zero(e, [x, y]) for e in exprs):
+        return None, None
+    initial = _Mechanics(exprs, lam, mu, rho, "static", DerivativeBudget(where, "initial.u"))
+    gradient = compile_field([initial.grad[i, j] for i in range(2) for j in range(2)], ("x", "y"))
+
+    def grad(x, y):
+        rows = gradient(x, y)  # (4, n), row 2 i + j = d u0_i / d x_j
+        return rows.reshape(2, 2, *rows.shape[1:])
+
+    return grad, compile_field(initial.div_sigma, ("x", "y"))
 
 
 def _boundary(where: str, name: str, table: dict, mechanics, checks) -> BoundaryCondition:
