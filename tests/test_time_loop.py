@@ -19,7 +19,8 @@ import pytest
 from conftest import PAREFG, mpi_env
 
 from parefg.discretization.operators import build_discretization
-from parefg.run import _output_fields, run_scene
+from parefg.io.observers import output_fields as _output_fields
+from parefg.run import run_scene
 from parefg.scene.loader import load_scene
 from parefg.timestepping.simulation import Simulation
 

@@ -28,7 +28,7 @@ from parefg.scene.fields import (
     scene_expressions,
     vector_field,
 )
-from parefg.scene.manufactured import ExactSolution, ManufacturedSolution
+from parefg.scene.manufactured import ExactSolution, ManufacturedSolution, initial_elasticity
 from parefg.scene.schema import PENALTY_KINDS, elastic_constants, plain_name, step_count, validate
 from parefg.scene.symbolic import DerivativeBudget
 from parefg.timestepping.schemes import SCHEMES
@@ -64,6 +64,7 @@ class Scene:
     dt: float
     beta: float
     gamma: float
+    rho_inf: float | None
     n_steps: int
     alpha_dirichlet: float
     alpha_contact: float
@@ -72,6 +73,9 @@ class Scene:
     body_force: Field
     initial_u: Field
     initial_v: Field
+    # grad u0 (x, y) -> (2, 2, n) and div sigma(u0) (x, y) -> (2, n); None where u0 = 0
+    initial_grad: Field | None
+    initial_div_stress: Field | None
     exact: ExactSolution | None
     output_every: int
     output_fields: list[str]
@@ -188,6 +192,9 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         dynamic = SCHEMES[time["scheme"]].dynamic
         manufactured = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
     checks = SignChecks(where, params, E)
+    initial_grad, initial_div_stress = initial_elasticity(
+        where, params["initial"].get("u"), manufactured, lam, mu, rho
+    )
     return Scene(
         name=params["name"],
         params=params,
@@ -203,6 +210,7 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         mu=mu,
         rho=rho,
         **{key: time[key] for key in ("scheme", "T", "dt", "beta", "gamma")},
+        rho_inf=time.get("rho_inf"),
         n_steps=step_count(where, time),
         **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS},
         boundaries={
@@ -212,6 +220,8 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         body_force=vector_field(where, "loads.f", params["loads"].get("f"), manufactured, "f"),
         initial_u=initial_field(where, "u", params["initial"].get("u"), manufactured),
         initial_v=initial_field(where, "v", params["initial"].get("v"), manufactured),
+        initial_grad=initial_grad,
+        initial_div_stress=initial_div_stress,
         exact=manufactured.solution() if manufactured else None,
         output_every=params["output"]["every"],
         output_fields=list(params["output"]["fields"]),

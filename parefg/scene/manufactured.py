@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import sympy
 
 from parefg.scene.expressions import SYMBOLS, compile_field
-from parefg.scene.fields import Field
-from parefg.scene.symbolic import DerivativeBudget
+from parefg.scene.fields import Field, scene_expressions
+from parefg.scene.symbolic import DerivativeBudget, is_identically_zero
 
 
 @dataclass
@@ -60,6 +60,7 @@ class ManufacturedSolution:
         eps = (self.grad + self.grad.T) / 2
         sigma = sympy.Float(lam) * eps.trace() * sympy.eye(2) + 2 * sympy.Float(mu) * eps
         div_sigma = [diff(sigma[i, 0], x) + diff(sigma[i, 1], y) for i in range(2)]
+        self.div_sigma = div_sigma
         inertia = [sympy.Float(rho) * diff(vi, t) for vi in self.velocity]
         if not dynamic:  # a static scheme: no inertia
             inertia = [0, 0]
@@ -89,3 +90,30 @@ class ManufacturedSolution:
             v=compile_field(self.velocity),
             grad=grad,
         )
+
+
+def initial_elasticity(
+    where: str, values, manufactured, lam: float, mu: float, rho: float
+) -> tuple[Field | None, Field | None]:
+    """grad u0 and div sigma(u0) as functions of (x, y), for the consistent start.
+
+    ``values`` are the scene's ``[initial] u`` (None: u0 of ``manufactured``, the exact
+    solution at t = 0).  Both None when u0 vanishes identically (decided on the
+    expressions, not on floats).
+    """
+    x, y, t = (SYMBOLS[s] for s in ("x", "y", "t"))
+    if values is not None:
+        exprs = [e.subs(t, 0) for e in scene_expressions(where, "initial.u", values)]
+    else:
+        exprs = manufactured.derived["u"]
+    if all(is_identically_zero(e, [x, y]) for e in exprs):
+        return None, None
+    derivatives = DerivativeBudget(where, "initial.u")
+    initial = ManufacturedSolution(exprs, lam, mu, rho, False, derivatives)
+    gradient = compile_field([initial.grad[i, j] for i in range(2) for j in range(2)], ("x", "y"))
+
+    def grad(x, y):
+        rows = gradient(x, y)  # (4, n), row 2 i + j = d u0_i / d x_j
+        return rows.reshape(2, 2, *rows.shape[1:])
+
+    return grad, compile_field(initial.div_sigma, ("x", "y"))
