@@ -81,10 +81,7 @@ class ShapeValues:
 
 
 def n_basis(degree: int, dim: int = 2) -> int:
-    """Number of complete Pascal monomials of total degree <= m in d dimensions: C(m + d, d).
-
-    In 2D (m + 1)(m + 2) / 2.
-    """
+    """Number of Pascal monomials of total degree <= m in d dimensions: C(m + d, d)."""
     return math.comb(degree + dim, dim)
 
 
