@@ -183,6 +183,21 @@ def test_the_block_stops_at_v0_over_mu_g_and_then_sticks(slide):
     assert np.all(rows[t >= t[-1] - 0.2, 6] <= 1e-9 * 0.5 * V0**2)  # no more slip dissipated
 
 
+def test_a_flying_body_carries_no_coulomb_friction(scenes):
+    """Thrown at the obstacle across a gap of 0.05 (v = (0.5, -1), no load): until it
+    touches (t = 0.05) every point is open, p = 0 so g = 0: the mean v_x stays 0.5 to
+    round-off and nothing is dissipated."""
+    flight = ["boundary.bottom.gap=0.05", "initial.v=[0.5, -1.0]", "loads.f=[0, 0]"]
+    sim = simulation(scenes["slide"], [*flight, "time.T=0.04"])
+    state = sim.start()
+    for n in range(1, sim.scene.n_steps + 1):
+        state = sim.step(state, n)
+        assert everywhere(sim.law.step_status == OPEN)
+    assert mean_velocity(sim, state)[0] == pytest.approx(0.5, rel=1e-12, abs=0)
+    assert abs(sim.history[-1]["dissipated_energy"]) <= 1e-12 * sim.history[0]["kinetic_energy"]
+    assert sim.coulomb_iterations == sim.scene.n_steps  # one outer iteration: g stays 0
+
+
 def coulomb_errors(source: str, overrides) -> dict[str, float]:
     sim = simulation(source, overrides)
     state = sim.start()
@@ -312,3 +327,17 @@ def test_one_rank_equals_two_ranks(tmp_path, scenes, case):
     if case == "mms":
         for norm in ("l2_rel", "h1_rel"):
             assert parallel["errors"][norm] == pytest.approx(serial["errors"][norm], rel=1e-8)
+
+
+@pytest.mark.serial_only
+def test_a_fixed_point_that_does_not_converge_fails_with_exit_1(tmp_path, scenes):
+    """Two outer iterations cannot converge the first step (g^(0) = 0 from the predictor
+    at rest): one line naming the residual and the limit, exit 1, the output kept."""
+    out = tmp_path / "failed"
+    args = ["run", scenes["mms"], "--out", str(out), "--quiet", "-coulomb_max_it", "2"]
+    result = run_parefg(args)
+    assert result.returncode == 1
+    lines = [line for line in result.stderr.splitlines() if line.startswith("parefg: ")]
+    assert len(lines) == 1 and "Coulomb friction failed at t = 0.0125" in lines[0]
+    assert "after 2 outer iterations (-coulomb_max_it 2)" in lines[0]
+    assert json.loads((out / "summary.json").read_text())["status"] == "failed"
