@@ -265,6 +265,8 @@ class Simulation:
         self.guard.check()  # also the friction bound that read_checkpoint set
         self._energy_budget = [_stored(last_row), abs(last_row["external_work"])]
         self.history = [dict(last_row)]
+        if isinstance(self.solver, CoulombStepSolver):
+            self.solver.resume(state.u)  # its first bound, as in the uninterrupted run
         return state
 
     # -- the loop ------------------------------------------------------------------------
