@@ -20,7 +20,7 @@ from parefg.errors import InputError
 from parefg.geometry.domains import BOX_PART_NAMES, Z_EDGE_NAMES, Z_VERTICES, polygon_defect
 from parefg.geometry.geo import load_geo
 from parefg.geometry.jitter import MAX_JITTER
-from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, FRICTION_LAWS
+from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, FRICTION_LAWS, PRESSURE_LAWS
 
 SECTIONS = (
     "domain",
@@ -404,11 +404,13 @@ def _read_boundaries(where: str, raw, part_names: list[str], has_exact: bool) ->
                 f"{where}: boundary.{_name(name)}: unknown boundary part (allowed: {known})"
             )
         table = _Table(where, f"boundary.{name}", entry)
+        given = set(table.raw)
         kind = table.take("type", _choice(*BOUNDARY_KEYS))
         for key, convert, zero, derived in BOUNDARY_KEYS[kind]:
             table.take(key, convert, None if derived and has_exact else copy.deepcopy(zero))
         if kind == "contact":
             _read_friction_law(table, has_exact)
+            _read_friction_coefficient(table, given)
         boundaries[name] = table.finish()
     return boundaries
 
@@ -426,6 +428,40 @@ def _read_friction_law(table: _Table, has_exact: bool) -> None:
     derived = has_exact and table.out.get("friction") is None
     default = "given" if derived else DEFAULT_FRICTION_LAW
     table.take("friction_law", _choice(*FRICTION_LAWS), default)
+
+
+def _read_friction_coefficient(table: _Table, given: set) -> None:
+    """friction_coefficient mu_f >= 0: required by, and only allowed with, a Coulomb part.
+
+    Coulomb's bound is mu_f times the contact pressure, so a given bound ``friction``
+    would have no effect: it is refused rather than ignored (and not written back).
+    """
+    law = table.out["friction_law"]
+    if law not in PRESSURE_LAWS:
+        if "friction_coefficient" in table.raw:
+            value = table.raw["friction_coefficient"]
+            raise table.fail(
+                "friction_coefficient",
+                value,
+                f"only used with friction_law = {', '.join(map(repr, PRESSURE_LAWS))} "
+                f"(this part's law {law!r} takes the bound 'friction')",
+            )
+        return
+    if "friction" in given:
+        raise table.fail(
+            "friction",
+            table.out["friction"],
+            f"not used with friction_law = {law!r}, whose bound is friction_coefficient "
+            "times the contact pressure: give friction_coefficient instead",
+        )
+    table.out.pop("friction", None)
+    if "friction_coefficient" not in table.raw:
+        raise InputError(
+            f"{table.where}: {table.path}.friction_coefficient is required with "
+            f"friction_law = {law!r} (Coulomb's mu_f >= 0)"
+        )
+    nonnegative = (lambda v: v >= 0, "must be >= 0 (Coulomb's mu_f)")
+    table.take("friction_coefficient", _number, check=nonnegative)
 
 
 def _read_vectors(table: _Table, keys: Sequence[str], has_exact: bool) -> None:
