@@ -278,6 +278,7 @@ def _summary(comm, scene, disc, sim, start, errors=None, status="ok") -> dict:
         "linear_iterations": sim.linear_iterations,
         "factorizations": sim.solver.factorizations,
         "max_newton_per_step": sim.max_newton_per_step,
+        **sim.coulomb_summary(),  # outer iterations of the Coulomb fixed point, if any
         # peak resident memory of the largest rank (ru_maxrss is in KiB on Linux)
         "peak_rss_mb": comm.allreduce(
             resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, op=MPI.MAX
@@ -309,6 +310,11 @@ def print_summary(summary: dict, out_dir: Path, file=sys.stdout) -> None:
         f"{summary['linear_iterations']} linear iterations, "
         f"{summary['factorizations']} factorization(s)"
     ]
+    if "coulomb_iterations" in summary:
+        lines.append(
+            f"Coulomb fixed point: {summary['coulomb_iterations']} outer iterations "
+            f"(at most {summary['max_coulomb_per_step']} per step)"
+        )
     if "errors" in summary:
         e = summary["errors"]
         lines.append(f"errors at T: L2 {e['l2_rel']:.3e}   H1 {e['h1_rel']:.3e}  (relative)")

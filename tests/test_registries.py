@@ -17,8 +17,8 @@ from parefg.errors import InputError
 from parefg.geometry import shapes
 from parefg.geometry.gmsh_mesh import mesh_domain
 from parefg.geometry.polygon import polygon_problem
+from parefg.scene.boundaries import BOUNDARY_KEYS
 from parefg.scene.loader import load_scene
-from parefg.scene.schema import BOUNDARY_KEYS
 from parefg.timestepping import schemes
 
 CLOCKWISE = [[0.0, 0.0], [0.0, 1.0], [1.0, 0.0]]  # a triangle listed clockwise

@@ -14,7 +14,7 @@ import sympy
 
 from parefg.boundary import BoundaryKind
 from parefg.errors import InputError
-from parefg.mechanics.friction import DEFAULT_FRICTION_LAW
+from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, PRESSURE_LAWS
 from parefg.scene.expressions import SYMBOLS, compile_field, parse_expression
 from parefg.scene.symbolic import is_identically_zero
 
@@ -31,6 +31,9 @@ class BoundaryCondition:
     ny) -> (n,)`` (contact s and Tresca bound g); ``friction_is_zero`` is True
     when g is identically zero, so the solver can skip tangential terms;
     ``friction_law`` names the contact part's law in parefg.mechanics.friction.FRICTION_LAWS.
+    A Coulomb part (friction_law in PRESSURE_LAWS) has the coefficient mu_f
+    ``friction_coefficient``, a zero ``friction`` field (its bound mu_f p is set by the
+    step), and ``friction_is_zero`` iff mu_f = 0.
     """
 
     name: str
@@ -41,6 +44,7 @@ class BoundaryCondition:
     friction: Field | None = None
     friction_is_zero: bool = True
     friction_law: str = DEFAULT_FRICTION_LAW
+    friction_coefficient: float = 0.0
 
 
 def scene_expression(where: str, key: str, value, args=("x", "y", "t")) -> sympy.Expr:
@@ -101,6 +105,8 @@ def _contact(where: str, name: str, table: dict, manufactured, checks) -> Bounda
     gap_expr = scene_expression(where, f"{prefix}.gap", table["gap"], ("x", "y"))
     checks.nonnegative(name, "gap", table["gap"], gap_expr)
     gap = compile_field([gap_expr], ("x", "y"))
+    if table["friction_law"] in PRESSURE_LAWS:
+        return _coulomb_boundary(name, table, lambda x, y: gap(x, y)[0])
     given = table.get("friction")
     if given is not None:
         friction = [scene_expression(where, f"{prefix}.friction", given)]
@@ -116,6 +122,20 @@ def _contact(where: str, name: str, table: dict, manufactured, checks) -> Bounda
         # derived friction is homogeneous in (nx, ny): zero for all normals iff for unit ones
         friction_is_zero=is_identically_zero(friction[0], [SYMBOLS[s] for s in WITH_NORMAL]),
         friction_law=table["friction_law"],
+    )
+
+
+def _coulomb_boundary(name: str, table: dict, gap: Field) -> BoundaryCondition:
+    """A Coulomb contact part: no given bound (zero field), the coefficient mu_f."""
+    coefficient = table["friction_coefficient"]
+    return BoundaryCondition(
+        name,
+        BoundaryKind.CONTACT,
+        gap=gap,
+        friction=lambda x, y, t, nx, ny: np.zeros(np.shape(x)),
+        friction_is_zero=coefficient == 0,  # the scene's number, not a computed float
+        friction_law=table["friction_law"],
+        friction_coefficient=coefficient,
     )
 
 

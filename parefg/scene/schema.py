@@ -1,6 +1,7 @@
 """The scene schema: every section of a scene's TOML read and checked key by key (SPEC 6).
 
-Each section is a :class:`~parefg.scene.table.Table` read by one function below.  The
+Each section is a :class:`~parefg.scene.table.Table` read by one function below (the
+``[boundary.NAME]`` tables by :mod:`parefg.scene.boundaries`).  The
 allowed names of interchangeable parts are read from their registries, not listed here:
 domain shapes and their keys from :data:`parefg.geometry.shapes.SHAPES`, weights from
 :data:`parefg.discretization.weights.WEIGHTS`, friction laws from
@@ -17,21 +18,19 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
-from parefg.boundary import BoundaryKind
 from parefg.discretization.weights import DEFAULT_WEIGHT, WEIGHTS
 from parefg.errors import InputError
 from parefg.geometry.geo import load_geo
 from parefg.geometry.gmsh_mesh import CELL_TYPES
 from parefg.geometry.jitter import MAX_JITTER
 from parefg.geometry.shapes import DEFAULT_SHAPE, SHAPES, domain_part_names
-from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, FRICTION_LAWS
+from parefg.scene.boundaries import read_boundaries
 from parefg.scene.table import (
     POSITIVE,
     REQUIRED,
     Table,
     as_integer,
     as_names,
-    as_nonnegative,
     as_number,
     as_pair,
     as_points,
@@ -235,52 +234,6 @@ def _read_penalty(table: Table, E: float, h: float) -> None:
         table.take(f"alpha_{kind}", as_number, alpha, POSITIVE)
 
 
-#: boundary type -> (key, converter, default without [exact], derived from [exact]?)
-BOUNDARY_KEYS = {
-    BoundaryKind.DIRICHLET: (("value", as_vector, [0, 0], True),),
-    BoundaryKind.NEUMANN: (("traction", as_vector, [0, 0], True),),
-    BoundaryKind.CONTACT: (
-        ("gap", as_nonnegative, 0, False),
-        ("friction", as_nonnegative, 0, True),
-    ),
-}
-
-
-def _read_boundaries(where: str, raw, part_names: list[str], has_exact: bool) -> dict:
-    if not isinstance(raw, dict):
-        raise InputError(f"{where}: boundary = {show(raw)}: must be a table of [boundary.NAME]")
-    boundaries = {}
-    for name, entry in raw.items():
-        if name not in part_names:
-            known = ", ".join(part_names)
-            raise InputError(
-                f"{where}: boundary.{key_name(name)}: unknown boundary part (allowed: {known})"
-            )
-        table = Table(where, f"boundary.{name}", entry)
-        kind = table.take("type", one_of(*BOUNDARY_KEYS))
-        for key, convert, zero, derived in BOUNDARY_KEYS[kind]:
-            table.take(key, convert, None if derived and has_exact else copy.deepcopy(zero))
-        if kind == BoundaryKind.CONTACT:
-            _read_friction_law(table, has_exact)
-        boundaries[name] = table.finish()
-    return boundaries
-
-
-def _read_friction_law(table: Table, has_exact: bool) -> None:
-    """friction_law: a name of parefg.mechanics.friction.FRICTION_LAWS, by default "tresca".
-
-    When the bound is derived from [exact] (friction not given), the default is "given":
-    a manufactured solution such as the square's grazes the obstacle (u_nu = s with
-    sigma_nu -> 0 as t -> 0), so under "tresca" the sign of the discretization error of
-    u_nu - s would decide which points carry friction (measured on the z scene, m = 1,
-    h = 1/16: L2 error 1.5e-4 with "given", 3.8e-3 with "tresca").  The effective scene
-    shows the law chosen.
-    """
-    derived = has_exact and table.out.get("friction") is None
-    default = "given" if derived else DEFAULT_FRICTION_LAW
-    table.take("friction_law", one_of(*FRICTION_LAWS), default)
-
-
 def _read_vectors(table: Table, keys: Sequence[str], has_exact: bool) -> None:
     """2-vector expressions defaulting to zero, or (absent) to data derived from [exact]."""
     for key in keys:
@@ -355,7 +308,7 @@ def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, 
     section("time", _read_time)
     E = elastic_constants(params["material"])[0]
     section("penalty", _read_penalty, E, params["discretization"]["h"])
-    params["boundary"] = _read_boundaries(where, raw.get("boundary", {}), part_names, has_exact)
+    params["boundary"] = read_boundaries(where, raw.get("boundary", {}), part_names, has_exact)
     section("initial", _read_vectors, ("u", "v"), has_exact)
     section("loads", _read_vectors, ("f",), has_exact)
     if has_exact:

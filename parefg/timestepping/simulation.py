@@ -20,6 +20,7 @@ from parefg.errors import SolverError
 from parefg.guards import DataGuard, RigidModes, all_finite, require_constraints
 from parefg.mechanics.contact import ContactLaw
 from parefg.profiling import phase
+from parefg.timestepping.coulomb import CoulombStepSolver
 from parefg.timestepping.schemes import State, make_scheme, relative_errors
 from parefg.timestepping.step_solver import (
     ContactStepSolver,
@@ -69,13 +70,14 @@ class Simulation:
             if self.law is None:
                 self.solver = LinearStepSolver(comm, self.a_const)
             else:
-                self.solver = ContactStepSolver(comm, self.a_const, self.law)
+                self.solver = _contact_solver(comm, self.a_const, self.law)
             self.rigid_modes = self._rigid_mode_check()
         self.history: list[dict[str, float]] = []
         self._energy_budget = [0.0, 0.0]  # initial stored energy, largest |external work|
         self.newton_iterations = 0
         self.linear_iterations = 0
         self.max_newton_per_step = 0
+        self.coulomb_iterations = self.max_coulomb_per_step = 0  # outer (bound) iterations
         create = disc.create_vec
         # predictors, right-hand side, a scratch vector, one part of a load, a matrix product
         self._ut, self._vt, self._b, self._work, self._part, self._product = (
@@ -332,6 +334,7 @@ class Simulation:
             "dissipated_energy": 0.0,
             "external_work": 0.0,
         }
+        row.update(self._coulomb_row(0))
         self._energy_budget = [_stored(row), 0.0]  # initial stored energy, max |work|
         self._check_row(row, 0)
         self.history = [row]
@@ -347,6 +350,8 @@ class Simulation:
         self.guard.check()  # also the friction bound that read_checkpoint set
         self._energy_budget = [_stored(last_row), abs(last_row["external_work"])]
         self.history = [dict(last_row)]
+        if isinstance(self.solver, CoulombStepSolver):
+            self.solver.resume(state.u)  # its first bound, as in the uninterrupted run
         return state
 
     # -- the loop ------------------------------------------------------------------------
@@ -532,10 +537,32 @@ class Simulation:
             "dissipated_energy": dissipated,
             "external_work": work,
         }
+        row.update(self._coulomb_row(getattr(self.solver, "outer_iterations", 0)))
         self._check_row(row, int(round(t / self.scheme.k)))
         self.history.append(row)
         if not self.keep_history:
             del self.history[:-1]
+
+    def _coulomb_row(self, outer: int) -> dict[str, int]:
+        """The step's outer (friction-bound) iterations for a scene with Coulomb parts.
+
+        Also counts them into the run's totals.  Without Coulomb parts the row has no such
+        column (the per-step table of other scenes is unchanged).
+        """
+        if self.law is None or not self.law.has_coulomb:
+            return {}
+        self.coulomb_iterations += outer
+        self.max_coulomb_per_step = max(self.max_coulomb_per_step, outer)
+        return {"coulomb_iterations": outer}
+
+    def coulomb_summary(self) -> dict[str, int]:
+        """summary.json keys of the Coulomb fixed point (none without Coulomb parts)."""
+        if self.law is None or not self.law.has_coulomb:
+            return {}
+        return {
+            "coulomb_iterations": self.coulomb_iterations,
+            "max_coulomb_per_step": self.max_coulomb_per_step,
+        }
 
     def _load_work(self, u_old, u_new, forces) -> float:
         """Trapezoidal work of F over the step: (F_{n-1} + F_n)/2 . (u_n - u_{n-1}).
@@ -582,6 +609,13 @@ class Simulation:
         """x^T A x for a square DOF matrix A (mass, stiffness).  Collective."""
         matrix.mult(x, self._product)
         return self._product.dot(x)
+
+
+def _contact_solver(comm, a_const: PETSc.Mat, law: ContactLaw) -> ContactStepSolver:
+    """The Newton step solver, with the Coulomb fixed point around it when a part needs it."""
+    if law.has_coulomb:
+        return CoulombStepSolver(comm, a_const, law)
+    return ContactStepSolver(comm, a_const, law)
 
 
 def _stored(row: dict) -> float:
