@@ -30,6 +30,7 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.boundary import BoundaryKind
 from parefg.discretization.assembly import owned_rows, petsc_matrix
 from parefg.guards import DataGuard
 from parefg.mechanics.friction import FRICTION_LAWS, PRESSURE_LAWS, coulomb_bound
@@ -57,7 +58,11 @@ class ContactLaw:
         self.alpha_c, self.alpha_t = scene.alpha_contact, scene.alpha_friction
         self.dof_ranges = 2 * disc.partition.node_ranges
         bcs = [scene.boundaries[name] for name in disc.cloud.part_names if name in scene.boundaries]
-        self._bcs = {disc.cloud.part_names.index(bc.name): bc for bc in bcs if bc.kind == "contact"}
+        self._bcs = {
+            disc.cloud.part_names.index(bc.name): bc
+            for bc in bcs
+            if bc.kind == BoundaryKind.CONTACT
+        }
         self.part = points.part
         self.has_friction = not all(bc.friction_is_zero for bc in self._bcs.values())
         self.gap = self._per_part("gap", lambda bc, x, y, n: bc.gap(x, y), 0.0)

@@ -14,6 +14,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.boundary import BoundaryKind
 from parefg.discretization.assembly import petsc_matrix, with_pattern
 from parefg.errors import SolverError
 from parefg.guards import DataGuard, RigidModes, all_finite, require_constraints
@@ -57,8 +58,12 @@ class Simulation:
         if disc.contact is not None:
             self.law = ContactLaw(comm, disc, scene, self.guard)
             self.guard.check()  # the gap
-        self.dirichlet_names = [n for n, bc in scene.boundaries.items() if bc.kind == "dirichlet"]
-        self.neumann_names = [n for n, bc in scene.boundaries.items() if bc.kind == "neumann"]
+        self.dirichlet_names = [
+            n for n, bc in scene.boundaries.items() if bc.kind == BoundaryKind.DIRICHLET
+        ]
+        self.neumann_names = [
+            n for n, bc in scene.boundaries.items() if bc.kind == BoundaryKind.NEUMANN
+        ]
         self.timings: dict[str, float] = {"assembly": 0.0, "solve": 0.0, "output": 0.0}
         with phase(self.timings, "assembly"):
             self.a_const = self._a_const()

@@ -16,7 +16,7 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[2] / "parefg"
 
 #: lowest first: a module may import from its own layer or a lower one only
 LAYERS = (
-    ("_env", "errors", "profiling", "parallel", "guards", "petsc_options"),
+    ("_env", "errors", "profiling", "parallel", "guards", "petsc_options", "boundary"),
     ("geometry",),
     ("discretization",),
     ("mechanics",),
