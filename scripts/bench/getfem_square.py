@@ -143,6 +143,20 @@ class _Square:
     mim: object  # integration on Omega (and, through its faces, the boundary)
     mimd: object  # the Gamma_C quadrature points, home of the slip xi
     model: object
+    loads: list  # (GWFL expression, region): the step's right-hand side l_n + M ut / (beta k^2)
+    rhs_brick: int  # GetFEM's explicit-rhs brick that carries it
+
+    def assemble_loads(self) -> None:
+        """Assemble the right-hand side at the model's t and ut, once per step.
+
+        An explicit-rhs brick, not source-term bricks: GetFEM reassembles those at every
+        residual evaluation of its Newton, though they do not depend on u (measured 5-10 %
+        of the run at h = 1/16; the factorizations dominate).
+        """
+        rhs = sum(
+            gf.asm_generic(self.mim, 1, expr, region, self.model) for expr, region in self.loads
+        )
+        self.model.set_private_rhs(self.rhs_brick, rhs)
 
 
 def _mesh(n: int):
@@ -174,13 +188,12 @@ def _model(scene, data: GwflData, mesh, degree: int) -> _Square:
     md.add_isotropic_linearized_elasticity_brick(mim, "u", "lambda", "mu")
     md.add_mass_brick(mim, "u", "cM")
     md.add_fem_data("ut", mf)  # Newmark predictor
-    md.add_source_term(mim, "cM*ut.Test_u")
-    md.add_source_term(mim, f"{data.f}.Test_u")
+    loads = [(f"(cM*ut + {data.f}).Test_u", -1)]
     md.add_fem_data("ubar", mf)
     for name, bc in scene.boundaries.items():
         region = PARTS[name][0]
         if bc.kind == "neumann":
-            md.add_source_term(mim, f"{data.traction}.Test_u", region)
+            loads.append((f"{data.traction}.Test_u", region))
         elif bc.kind == "dirichlet":
             md.add_Dirichlet_condition_with_simplification("u", region, "ubar")
         else:
@@ -188,7 +201,8 @@ def _model(scene, data: GwflData, mesh, degree: int) -> _Square:
             md.add_im_data("xi", mimd)
             md.add_nonlinear_term(mim, "alpha_C*pos_part(u.Normal - s)*(Test_u.Normal)", region)
             md.add_nonlinear_term(mim, "max(min(alpha_T*(u.Tg - xi), g), -g)*(Test_u.Tg)", region)
-    return _Square(mesh, mf, mim, mimd, md)
+    rhs_brick = md.add_explicit_rhs("u", np.zeros(mf.nbdof()))
+    return _Square(mesh, mf, mim, mimd, md, loads, rhs_brick)
 
 
 def _initial_acceleration(scene, data: GwflData, square: _Square, u0: np.ndarray) -> np.ndarray:
@@ -244,6 +258,7 @@ def solve(scene, data: GwflData, degree: int = 2) -> dict:
         md.set_variable("ut", ut)
         md.set_variable("ubar", md.interpolation(data.u, mf, top))
         md.set_variable("u", ut)  # initial guess: the predictor, as parefg
+        square.assemble_loads()
         iterations, converged = md.solve(
             "max_res", NEWTON_MAX_RES, "max_iter", NEWTON_MAX_ITER, "lsolver", LINEAR_SOLVER
         )
