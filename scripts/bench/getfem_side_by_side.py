@@ -21,8 +21,12 @@ RATE_FLOOR of the expected one (FEM degree for H1) makes the script exit 1.
 
     .venv/bin/python scripts/bench/getfem_side_by_side.py [--repeats 3] [--quick]
         [--out results/getfem_side_by_side]
+    .venv/bin/python scripts/bench/getfem_side_by_side.py --tables-from DIR/side_by_side.csv
 
-Writes side_by_side.csv (every case), targets.csv and time_vs_error.png into --out.
+Writes side_by_side.csv (every case), targets.csv and time_vs_error.png (both codes, with
+each code's front) into --out; prints the convergence tables, every case, the targets
+table and the cheapest case per discretization.  --tables-from redoes the tables and
+the figure of an earlier run without running anything.
 Needs Debian's python3-getfem (optional): without it, one line and exit 0.
 """
 
@@ -231,7 +235,7 @@ def markdown(rows: list[dict], targets: list[dict]) -> str:
               "|---|---|---|---|"]  # fmt: skip
     for t in targets:
         cells = [
-            f"{t[f'{c}_s']:.3f} s ({t[f'{c}_case'].split(', ', 1)[1]}, H1 {t[f'{c}_h1']:.2e})"
+            f"{t[f'{c}_s']:.3f} s ({t[f'{c}_case'].removeprefix(c + ' ')}, H1 {t[f'{c}_h1']:.2e})"
             if t[f"{c}_case"] != "not reached"
             else "not reached"
             for c in ("GetFEM", "parefg")
@@ -239,6 +243,25 @@ def markdown(rows: list[dict], targets: list[dict]) -> str:
         ratio = t["ratio_parefg_over_getfem"]
         shown = f"{ratio:.2f}x" if np.isfinite(ratio) else "-"
         lines.append(f"| {t['target_h1']:g} | {cells[0]} | {cells[1]} | {shown} |")
+    return "\n".join(lines)
+
+
+def per_discretization(rows: list[dict]) -> str:
+    """Markdown: per target, the cheapest case of each code and degree (P2 alone, m = 3 alone)."""
+    kinds = sorted({(r["code"], r["degree"]) for r in rows})
+    names = [f"{c} {'P' if c == 'GetFEM' else 'm = '}{d}" for c, d in kinds]
+    lines = ["| target H1 rel | " + " | ".join(names) + " |", "|---" * (len(kinds) + 1) + "|"]
+    for target in TARGETS:
+        cells = []
+        for code, degree in kinds:
+            mine = [r for r in rows if r["code"] == code and r["degree"] == degree]
+            best = cheapest(mine, code, target)
+            cells.append(
+                f"{best['median_s']:.2f} s (1/{best['n']}, {best['dt']:g})"
+                if best
+                else "not reached"
+            )
+        lines.append(f"| {target:g} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -263,6 +286,11 @@ def plot(path: Path, rows: list[dict]) -> None:
         kind = f"P{degree}" if code == "GetFEM" else f"m = {degree}"
         ax.loglog([r["median_s"] for r in mine], [r["h1_rel"] for r in mine], styles[code],
                   label=f"{code} {kind}", alpha=0.8)  # fmt: skip
+    for code, color in (("GetFEM", "tab:orange"), ("parefg", "tab:red")):
+        # the code's front: the smallest error reached within each time
+        mine = sorted((r["median_s"], r["h1_rel"]) for r in rows if r["code"] == code)
+        front = np.minimum.accumulate([e for _, e in mine])
+        ax.step([t for t, _ in mine], front, where="post", color=color, lw=1, label=f"{code} front")
     for target in TARGETS:
         ax.axhline(target, color="grey", lw=0.5, ls="--")
     ax.set_xlabel("wall time, median [s] (1 process)")
@@ -274,12 +302,47 @@ def plot(path: Path, rows: list[dict]) -> None:
     plt.close(fig)
 
 
+def read_rows(path: Path) -> list[dict]:
+    """The rows of a side_by_side.csv, numbers as numbers."""
+    with open(path, newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    integers = ("degree", "n", "dofs", "steps", "newton")
+    return [
+        {k: v if k == "code" else int(v) if k in integers else float(v) for k, v in row.items()}
+        for row in rows
+    ]
+
+
+def report(rows: list[dict], out: Path) -> bool:
+    """Print the tables, write the CSVs and the figure; True when GetFEM's rates hold."""
+    tables, verified = convergence_tables(rows)
+    targets = target_rows(rows)
+    print(tables)
+    print("\n" + markdown(rows, targets))
+    print(
+        "\nper discretization, cheapest case (h, dt) at each target:\n" + per_discretization(rows)
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "side_by_side.csv", rows)
+    write_csv(out / "targets.csv", targets)
+    plot(out / "time_vs_error.png", rows)
+    print(f"\nwrote {out}/side_by_side.csv, targets.csv, time_vs_error.png")
+    if not verified:
+        print("getfem_side_by_side: GetFEM's diagonal H1 rate is below the expected order")
+    return verified
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3, help="runs per median (default 3)")
     parser.add_argument("--out", default="results/getfem_side_by_side", help="output directory")
     parser.add_argument("--quick", action="store_true", help="a small grid, for development")
+    parser.add_argument(
+        "--tables-from", metavar="CSV", help="no runs: the tables and figure of a side_by_side.csv"
+    )
     args = parser.parse_args(argv)
+    if args.tables_from:
+        return 0 if report(read_rows(Path(args.tables_from)), Path(args.out)) else 1
     try:
         import getfem
         import getfem_square
@@ -291,23 +354,10 @@ def main(argv=None) -> int:
     grid = cases(QUICK_GRIDS if args.quick else GRIDS)
     print("warm-up (first gmsh, PETSc, MUMPS use; not measured)")
     measure(runner, [grid[0], next(c for c in grid if c["code"] == "parefg")], 1)
-    print(f"{len(grid)} cases, median of {args.repeats}, OMP_NUM_THREADS="
-          f"{os.environ['OMP_NUM_THREADS']}")  # fmt: skip
+    threads = os.environ["OMP_NUM_THREADS"]
+    print(f"{len(grid)} cases, median of {args.repeats}, OMP_NUM_THREADS={threads}")
     rows = measure(runner, grid, args.repeats)
-    tables, verified = convergence_tables(rows)
-    targets = target_rows(rows)
-    print(tables)
-    print("\n" + markdown(rows, targets))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_csv(out / "side_by_side.csv", rows)
-    write_csv(out / "targets.csv", targets)
-    plot(out / "time_vs_error.png", rows)
-    print(f"\nwrote {out}/side_by_side.csv, targets.csv, time_vs_error.png")
-    if not verified:
-        print("getfem_side_by_side: GetFEM's diagonal H1 rate is below the expected order")
-        return 1
-    return 0
+    return 0 if report(rows, Path(args.out)) else 1
 
 
 if __name__ == "__main__":
