@@ -1,4 +1,4 @@
-"""parefg's square scene (SPEC 6) in GetFEM's own terms: P1/P2 triangles, Newmark, penalty contact.
+"""parefg's square scene (SPEC 6) in GetFEM's own terms: P1-P3 triangles, Newmark, penalty contact.
 
 The continuous problem is the one parefg solves, read from the same :class:`Scene`
 (``load_scene("square", overrides)``): material, Newmark beta and gamma, T, dt, penalty
@@ -7,8 +7,9 @@ data are derived exactly as :mod:`parefg.scene.loader` derives them (sympy) and 
 GetFEM as weak-form-language (GWFL) expressions of X, t and Normal, evaluated at GetFEM's
 own quadrature points (no interpolation of the data):
 
-    f = rho u_tt - div sigma(u)             body force, a source term on Omega
-    p = sigma(u) nu                         traction on the neumann parts (left, right)
+    f = rho u_tt - div sigma(u)             body force on Omega  } assembled once per step
+    p = sigma(u) nu                         traction on the      } (asm_generic) into an
+                                            neumann parts        } explicit-rhs brick
     ubar = u                                Dirichlet data on top (strong: GetFEM's
                                             Dirichlet brick with simplification, nodal values)
     g = |tau . sigma(u) nu|                 Tresca bound on the contact part (bottom)
@@ -25,8 +26,11 @@ with the accumulated slip xi an internal variable at the Gamma_C quadrature poin
 xi_n = u_tau - clip(u_tau - xi_{n-1}, -g_n/alpha_T, g_n/alpha_T).  Then
 a_n = (u_n - ut)/(beta k^2), v_n = vt + gamma k a_n.  The contact and friction terms are
 GWFL nonlinear terms (GetFEM differentiates them: pos_part -> Heaviside, min/max), the
-rest are GetFEM's linear bricks (isotropic linearized elasticity, mass); the step is
-solved by GetFEM's Newton (``Model.solve``) with MUMPS.  GetFEM's own contact bricks
+rest are GetFEM's linear bricks (isotropic linearized elasticity, mass with rho/(beta k^2)),
+assembled once; the step is solved by GetFEM's Newton (``Model.solve``, predictor as the
+initial guess) with MUMPS.  The mesh is GetFEM's structured "regular_simplices" (1/h
+squares a side, each cut in two): h is the element size, where parefg's h is the node
+spacing, so compare by DOFs too.  GetFEM's own contact bricks
 regularize Coulomb friction on the slip increment (which lets sticking points creep,
 SPEC 4), so parefg's law is written in GWFL instead, as a GetFEM user writes a custom law.
 
