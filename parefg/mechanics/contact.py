@@ -30,9 +30,9 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.discretization.assembly import owned_rows, petsc_matrix
 from parefg.guards import DataGuard
 from parefg.mechanics.friction import FRICTION_LAWS, PRESSURE_LAWS, coulomb_bound
+from parefg.parallel import owned_rows, petsc_matrix
 
 OPEN, STICK, SLIP = 0, 1, 2
 
