@@ -187,17 +187,9 @@ class _Builder:
         boundary, contact, dirichlet_local, pattern_local = self._boundaries()
         nodes = self._node_points()
         with phase(self.timings, "assembly"):
-            owned = {
-                name: owned_rows(comm, local, self.dof_ranges)
-                for name, local in [
-                    ("mass", mass_local),
-                    ("stiffness", stiffness_local),
-                    ("dirichlet", dirichlet_local),
-                ]
-            }
-            mass, stiffness, dirichlet = (
-                self._square(owned[name]) for name in ("mass", "stiffness", "dirichlet")
-            )
+            local = {"mass": mass_local, "stiffness": stiffness_local, "dirichlet": dirichlet_local}
+            owned = {name: owned_rows(comm, rows, self.dof_ranges) for name, rows in local.items()}
+            mass, stiffness, dirichlet = (self._square(owned[name]) for name in local)
             contact_pattern = owned_rows(comm, pattern_local, self.dof_ranges)
         conditions = np.concatenate(self.conditions) if self.conditions else np.ones(1)
         return Discretization(
