@@ -18,7 +18,7 @@ import os
 import resource
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from parefg.discretization.size_estimate import (
     Size,
@@ -29,9 +29,6 @@ from parefg.discretization.size_estimate import (
 )
 from parefg.errors import InputError
 from parefg.parallel import raise_everywhere
-
-if TYPE_CHECKING:
-    from parefg.scene.loader import Scene
 
 GB = 1e9  # --max-memory and the messages count decimal gigabytes
 # Share of the available memory a run may take by default (the machine is shared).
@@ -116,6 +113,17 @@ def _about(count: float) -> str:
     return f"about {_format_count(count)}" if math.isfinite(count) else _format_count(count)
 
 
+class BudgetedScene(Protocol):
+    """What the budget reads of a scene itself (the estimates read the rest).
+
+    A protocol, not the Scene class: scenes sit above the discretization in the layers.
+    """
+
+    name: str
+    h: float
+    support: float
+
+
 @dataclass(frozen=True)
 class Budget:
     """The memory a scene's run may use, and the checks against it.
@@ -137,7 +145,7 @@ class Budget:
         Whether the limit is --max-memory (else the machine's available memory).
     """
 
-    scene: Scene
+    scene: BudgetedScene
     rank_bytes: float
     host_ranks: int
     n_ranks: int
