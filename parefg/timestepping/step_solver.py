@@ -263,12 +263,16 @@ class ContactStepSolver:
         un, ut = self.law.kinematics(u)
         active = self.law.active_set(un, ut)
         self._step_active = active
-        changed = self._signature is None or not np.array_equal(active, self._signature)
+        # a normal force that is not affine in u (negative piece code) has a Jacobian that
+        # varies with u: rebuild it now, and again at the next call whatever the active set
+        varying = bool(np.any(self.law.piece(un, ut) < 0))
+        changed = varying or self._signature is None
+        changed = changed or not np.array_equal(active, self._signature)
         if not self.comm.allreduce(changed):
             return  # same matrix: PETSc keeps the factorization
         self.a_const.copy(self.jacobian, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         add_owned_rows(self.jacobian, self.law.jacobian_rows(un, ut))
-        self._signature = active
+        self._signature = None if varying else active
         self.jacobian_builds += 1
 
     # -- the VI-aware line search ---------------------------------------------
@@ -299,7 +303,8 @@ class ContactStepSolver:
             self._exact_piece = False
             y.scale(0.0)
             return True
-        same_piece = np.array_equal(self.law.piece(un, ut), self.law.piece(un + dn, ut + dt))
+        piece = self.law.piece(un, ut)
+        same_piece = np.all(piece >= 0) and np.array_equal(piece, self.law.piece(un + dn, ut + dt))
         self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
         before = self.energy(x) if self.record_energy else 0.0
         if not self._exact_piece:
