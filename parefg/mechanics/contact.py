@@ -458,8 +458,10 @@ def dg_pressure(d0: np.ndarray, d1: np.ndarray, alpha: float) -> np.ndarray:
 def dg_slope(d0: np.ndarray, d1: np.ndarray, alpha: float) -> np.ndarray:
     """d p / d d1 of :func:`dg_pressure` (>= 0), the Jacobian weight.  Not collective."""
     down, up = _crossings(d0, d1)
-    safe = np.where(down | up, d1 - d0, 1.0) ** 2
-    crossing = np.where(down, d1 * (d1 - 2.0 * d0), d0 * d0) / safe
+    # ratios first (|r| <= 1 across the obstacle): squaring d1 - d0 could underflow
+    safe = np.where(down | up, d1 - d0, 1.0)
+    r0, r1 = d0 / safe, d1 / safe
+    crossing = np.where(down, r1 * (r1 - 2.0 * r0), r0 * r0)
     return alpha * np.where(down | up, crossing, (d1 > 0.0).astype(float))
 
 
