@@ -15,6 +15,7 @@ import pytest
 from mpi4py import MPI
 
 from parefg.discretization.operators import build_discretization
+from parefg.io.checkpoint import read_checkpoint, write_checkpoint
 from parefg.mechanics.contact import dg_potential, dg_pressure, dg_slope
 from parefg.scene.loader import load_scene
 from parefg.timestepping.simulation import Simulation
@@ -116,3 +117,32 @@ def test_bar_rebounds_at_the_physical_velocity_after_2l_over_c():
     closed = np.flatnonzero([r["active_contact_points"] > 0 for r in sim.history])
     duration = (closed[-1] - closed[0] + 1) * 0.02
     assert abs(duration - 2.0) <= 0.05 * 2.0
+
+
+def test_restart_within_an_impact_at_beta_half_matches(tmp_path):
+    """Checkpoint mid-impact at beta = 1/2 (the step force C_n is state), restart: same run.
+
+    C_n is not the pressure at u_n after a crossing step, so it must come from the file.
+    """
+    comm = MPI.COMM_WORLD
+    overrides = ["time.beta=0.5", "penalty.alpha_contact=1e5", "time.T=0.2", "time.dt=0.005"]
+    full, _, reference = run("impact", overrides)
+    scene = load_scene("impact", overrides)
+    disc = build_discretization(comm, scene)
+    sim = Simulation(comm, scene, disc)
+    state = sim.start()
+    split = 12  # the block touches down at t ~ 0.05: step 12 is within the impact
+    for n in range(1, split + 1):
+        state = sim.step(state, n)
+    assert sim.history[-1]["active_contact_points"] > 0
+    path = tmp_path / "checkpoint.h5"
+    write_checkpoint(comm, path, sim, state, split)
+    again = Simulation(comm, scene, disc)
+    again.start()
+    state, done, row = read_checkpoint(comm, path, again)
+    state = again.resume(state, done, row)
+    for n in range(done + 1, scene.n_steps + 1):
+        state = again.step(state, n)
+    difference = state.u.copy()
+    difference.axpy(-1.0, reference.u)
+    assert difference.norm() <= 1e-12 * reference.u.norm()
