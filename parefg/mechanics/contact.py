@@ -14,6 +14,19 @@ alpha_C B_nu^T W B_nu on closed points and alpha_T B_tau^T W B_tau on sticking o
 Everything is piecewise linear in u, so the energy along a Newton direction is convex
 piecewise quadratic (see :meth:`ContactLaw.directional`).
 
+Time discretization of the normal force (``[time] contact_force``).  "endpoint" puts
+p(u_n) in step n; the trapezoidal rule then averages p(u_{n-1}) and p(u_n), which is not
+the work the penalty stores when a point crosses the obstacle within the step (measured:
+the impact scene gains 5.7x at beta = 1/4).  "discrete_gradient" (default; Armero &
+Petocz 1998, Hauret & Le Tallec 2006) puts C_n = 2 DG(d_{n-1}, d_n) - C_{n-1} in the
+step, DG the discrete gradient of phi(d) = alpha_C/2 (d^+)^2 (d = u_nu - s), so that
+(C_{n-1} + C_n)/2 (d_n - d_{n-1}) = phi(d_n) - phi(d_{n-1}) exactly.  C_n is nondecreasing
+in d_n with a closed-form convex primitive (:func:`dg_potential`): J_n stays convex and
+the exact line search keeps its guarantee.  While C_{n-1} is the pressure at u_{n-1}
+(always at beta = 1/4: Simulation._contact_acceleration), C_n is the endpoint force at
+every point that does not cross; at a crossing point it is a rational function of d_n
+(not affine: piece code -1, its Jacobian entry rebuilt at every iteration).
+
 The friction law gates the bound once per step, before the solve (:meth:`ContactLaw.gate`):
 "tresca" keeps g only at points touching at the Newmark predictor, "given" everywhere.
 So the per-step energy stays convex, and every method below (energy, residual, Jacobian,

@@ -13,8 +13,9 @@ Two solvers, chosen by what the scene needs:
 The VI-aware line search is a line-search *pre-check* on a ``basic`` (full-step) line
 search: given the Newton update Y (PETSc steps x <- x - Y), the pre-check replaces Y by
 t* Y with t* the exact minimizer of the convex, piecewise-quadratic J_n(x - t Y).  Its
-derivative is monotone and piecewise linear in t; t* is found by Newton's method on the
-current linear piece inside a shrinking bracket (exact after finitely many pieces).  So
+derivative is monotone and piecewise linear in t (piecewise smooth where the
+discrete-gradient contact force crosses the obstacle, parefg.mechanics.contact); t* is
+found by Newton's method on the current piece inside a shrinking bracket.  So
 J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, ...)
 still applies; -snes_linesearch_type may be basic (default), bt, cp or nleqerr (see
 :data:`LINE_SEARCHES`).
