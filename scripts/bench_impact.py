@@ -142,7 +142,8 @@ def plot(results: list[dict], path: Path) -> None:
                 t = np.arange(len(r["history"])) * r["dt"]
                 ax.plot(t, r["history"], label=f"alpha = {r['alpha_E_per_h']:.0e} E/h")
         ax.set_title(f"{method}, beta = {beta}, dt = {finest}")
-        ax.set_yscale("log")
+        low, high = ax.get_ylim()
+        ax.set_ylim(min(low, 0.95), max(high, 1.05))  # the [0.95, 1.05] band at least
         ax.set_ylabel("E(t) / E_0")
         ax.grid(True, which="both", alpha=0.3)
     axes[-1, 0].set_xlabel("t")
