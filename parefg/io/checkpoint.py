@@ -117,8 +117,8 @@ def load_checkpoint(path: Path, sim, nodes: np.ndarray) -> dict:
     ``nodes`` (n_nodes, 2) are the scene's node coordinates in the global order: the
     checkpoint's must match (a changed .geo file or gmsh version moves the nodes).
 
-    Returns the arrays (``u``, ``v``, ``a``, ``slip``, ``contact_level`` with contact), ``step`` and
-    ``history`` (the last table row).  Raises InputError naming what is wrong.
+    Returns the arrays (``u``, ``v``, ``a``, ``slip``, ``contact_level`` with contact),
+    ``step`` and ``history`` (the last table row).  Raises InputError naming what is wrong.
     """
     where = f"--restart {_shown(path)}"
     _check_regular_file(where, path)
@@ -193,7 +193,7 @@ def _read_attributes(where: str, handle) -> dict:
 
 def _expected_shapes(sim) -> dict[str, tuple]:
     """Shape of every dataset a checkpoint for ``sim`` must hold (global order)."""
-    shapes = {name: (sim.disc.n_nodes, 2) for name in (*VECTORS, "nodes")}
+    shapes: dict[str, tuple] = {name: (sim.disc.n_nodes, 2) for name in (*VECTORS, "nodes")}
     if sim.law is not None:
         shapes["slip"] = (sim.disc.n_contact, *np.shape(sim.law.slip)[1:])
         shapes["contact_level"] = (sim.disc.n_contact,)

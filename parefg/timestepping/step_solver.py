@@ -203,7 +203,7 @@ class ContactStepSolver:
         self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
         self.record_energy = False
         self.residual_norm = self.tolerance = float("nan")  # of the last step
-        self._signature = None  # active set the Jacobian was built for
+        self._signature: np.ndarray | None = None  # active set the Jacobian was built for
         # active set of the iterate a Newton step started from (set before any step test)
         self._step_active: np.ndarray = np.zeros(0, dtype=bool)
         self._exact_piece = False
@@ -267,8 +267,8 @@ class ContactStepSolver:
         # a normal force that is not affine in u (negative piece code) has a Jacobian that
         # varies with u: rebuild it now, and again at the next call whatever the active set
         varying = bool(np.any(self.law.piece(un, ut) < 0))
-        changed = varying or self._signature is None
-        changed = changed or not np.array_equal(active, self._signature)
+        built = self._signature
+        changed = varying or built is None or not np.array_equal(active, built)
         if not self.comm.allreduce(changed):
             return  # same matrix: PETSc keeps the factorization
         self.a_const.copy(self.jacobian, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
