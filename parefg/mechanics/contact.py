@@ -14,6 +14,19 @@ alpha_C B_nu^T W B_nu on closed points and alpha_T B_tau^T W B_tau on sticking o
 Everything is piecewise linear in u, so the energy along a Newton direction is convex
 piecewise quadratic (see :meth:`ContactLaw.directional`).
 
+Time discretization of the normal force (``[time] contact_force``).  "endpoint" puts
+p(u_n) in step n; the trapezoidal rule then averages p(u_{n-1}) and p(u_n), which is not
+the work the penalty stores when a point crosses the obstacle within the step (measured:
+the impact scene gains 5.7x at beta = 1/4).  "discrete_gradient" (default; Armero &
+Petocz 1998, Hauret & Le Tallec 2006) puts C_n = 2 DG(d_{n-1}, d_n) - C_{n-1} in the
+step, DG the discrete gradient of phi(d) = alpha_C/2 (d^+)^2 (d = u_nu - s), so that
+(C_{n-1} + C_n)/2 (d_n - d_{n-1}) = phi(d_n) - phi(d_{n-1}) exactly.  C_n is nondecreasing
+in d_n with a closed-form convex primitive (:func:`dg_potential`): J_n stays convex and
+the exact line search keeps its guarantee.  While C_{n-1} is the pressure at u_{n-1}
+(always at beta = 1/4: Simulation._contact_acceleration), C_n is the endpoint force at
+every point that does not cross; at a crossing point it is a rational function of d_n
+(not affine: piece code -1, its Jacobian entry rebuilt at every iteration).
+
 The friction law gates the bound once per step, before the solve (:meth:`ContactLaw.gate`):
 "tresca" keeps g only at points touching at the Newmark predictor, "given" everywhere.
 So the per-step energy stays convex, and every method below (energy, residual, Jacobian,
@@ -24,6 +37,8 @@ and keeps it fixed through one such convex solve; the fixed point around it is t
 """
 
 from __future__ import annotations
+
+from contextlib import contextmanager
 
 import numpy as np
 import scipy.sparse as sp
@@ -56,6 +71,9 @@ class ContactLaw:
         self.tangents = np.column_stack([-normals[:, 1], normals[:, 0]])  # (n_c, 2)
         self.normals = normals
         self.alpha_c, self.alpha_t = scene.alpha_contact, scene.alpha_friction
+        # the discrete gradient needs a previous level: static load steps use the endpoint
+        dynamic = scene.scheme != "static"
+        self.contact_force = scene.contact_force if dynamic else "endpoint"
         self.dof_ranges = 2 * disc.partition.node_ranges
         bcs = [scene.boundaries[name] for name in disc.cloud.part_names if name in scene.boundaries]
         self._bcs = {
@@ -71,6 +89,9 @@ class ContactLaw:
         self.acting = np.ones(len(self.weights), dtype=bool)  # where the law lets g act (gate)
         self.bound = np.zeros(len(self.weights))  # g_n where acting, else 0: used by the step
         self.slip = np.zeros(len(self.weights))  # xi, accumulated slip
+        self.start_penetration = np.zeros(len(self.weights))  # d_{n-1} = u_nu - s at t_{n-1}
+        # C_{n-1}: the normal force at t_{n-1} as the acceleration a_{n-1} holds it
+        self.level_pressure = np.zeros(len(self.weights))
         self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
         self.step_friction = np.zeros(len(self.weights))
         # rotated value operator: rows 2q = nu_q . u_h(x_q), 2q + 1 = tau_q . u_h(x_q)
@@ -179,9 +200,54 @@ class ContactLaw:
         values = out.getArray().reshape(-1, 2)
         return values[:, 0].copy(), values[:, 1].copy()
 
-    def forces(self, un, ut) -> tuple[np.ndarray, np.ndarray]:
-        """Normal pressure p >= 0 and friction force f at the points."""
+    @contextmanager
+    def endpoint_force(self):
+        """Within the block the normal force is the pressure at u (a static problem)."""
+        saved, self.contact_force = self.contact_force, "endpoint"
+        try:
+            yield self
+        finally:
+            self.contact_force = saved
+
+    def begin_step(self, u_start: PETSc.Vec) -> None:
+        """Record d_{n-1} = u_nu - s at the start of the step, for the step force.  Collective."""
+        self.start_penetration = self.kinematics(u_start)[0] - self.gap
+
+    def set_level(self, un) -> None:
+        """C_n = the pressure alpha_C (u_nu - s)^+ at u (the initial state).  Not collective."""
+        self.level_pressure = self.pressure(un)
+
+    def end_level(self, un, physical: bool) -> np.ndarray:
+        """Close the step's normal force C_n; returns w (C_n - pressure) at the points.
+
+        The step solved with C_n = :meth:`step_pressure`, so that (C_{n-1} + C_n)/2 does
+        the penalty's work exactly.  ``physical``: the caller resets C_n to the pressure
+        alpha_C (u_nu - s)^+ and corrects a_n by M^-1 B_nu^T (returned excess), which
+        the trapezoidal rule's energy (no acceleration term) allows.  Otherwise C_n is
+        kept (and the excess is returned as zeros).  Not collective.
+        """
+        step = self.step_pressure(un)
+        if not physical:
+            self.level_pressure = step
+            return np.zeros_like(step)
         pressure = self.pressure(un)
+        self.level_pressure = pressure
+        return self.weights * (step - pressure)
+
+    def point_vector(self, normal: np.ndarray) -> PETSc.Vec:
+        """The work vector at the points, holding (normal_q, 0) (overwritten by later calls)."""
+        out = self._point_vec
+        out.setArray(np.column_stack([normal, np.zeros_like(normal)]).ravel())
+        return out
+
+    def crossing(self, un) -> np.ndarray:
+        """(n_c,) bool: the step crossed the obstacle (d = 0) at the point."""
+        down, up = _crossings(self.start_penetration, un - self.gap)
+        return down | up
+
+    def forces(self, un, ut) -> tuple[np.ndarray, np.ndarray]:
+        """Normal force of the step (see :meth:`step_pressure`) and friction force f."""
+        pressure = self.step_pressure(un)
         if not self.has_friction:
             return pressure, np.zeros_like(ut)
         return pressure, np.clip(self.alpha_t * (ut - self.slip), -self.bound, self.bound)
@@ -206,17 +272,34 @@ class ContactLaw:
 
         closed/open times stick/slip forward/slip backward: on one piece the residual is
         affine in u, so a full Newton step that stays on its piece solves the step exactly.
+        A negative code marks a point whose normal force is not affine in u (the discrete
+        gradient of a step that crosses the obstacle there): no piece shortcut applies.
         """
         code = (un > self.gap).astype(np.int8)
         if self.has_friction:
             z = self.alpha_t * (ut - self.slip)
             friction_state = np.where(z >= self.bound, 1, np.where(z <= -self.bound, 2, 0))
             code = code + 2 * friction_state.astype(np.int8)
+        if self.contact_force == "discrete_gradient":
+            code = np.where(self.crossing(un), -1, code).astype(np.int8)
         return code
 
     def add_residual(self, residual: PETSc.Vec, un, ut) -> None:
-        """residual += B_nu^T (w p) + B_tau^T (w f).  Collective."""
+        """residual += B_nu^T (w p) + B_tau^T (w f) with the step's forces.  Collective."""
+        self._add_point_forces(residual, *self.forces(un, ut))
+
+    def add_level_force(self, residual: PETSc.Vec, un, ut) -> None:
+        """residual += the force the last step ended with at its u_n.  Collective.
+
+        The normal part is C_n (:meth:`end_level`), which with the discrete gradient is not
+        the pressure at u_n after a crossing; the friction part is the last step's.
+        """
         pressure, friction = self.forces(un, ut)
+        if self.contact_force == "discrete_gradient":
+            pressure = self.level_pressure
+        self._add_point_forces(residual, pressure, friction)
+
+    def _add_point_forces(self, residual: PETSc.Vec, pressure, friction) -> None:
         point_forces = self._point_vec
         point_forces.setArray(
             np.column_stack([pressure, friction]).ravel() * np.repeat(self.weights, 2)
@@ -228,7 +311,7 @@ class ContactLaw:
 
         Returns two arrays (n_c,); the tangential one is zero without friction.
         """
-        closed = (un > self.gap) * self.weights * self.alpha_c
+        closed = self.weights * self.step_slope(un)
         if not self.has_friction:
             return closed, np.zeros_like(closed)
         return closed, (~self._sliding(ut)) * self.weights * self.alpha_t
@@ -251,13 +334,43 @@ class ContactLaw:
         """Normal pressure p = alpha_C (u_nu - s)^+ >= 0 at the points."""
         return self.alpha_c * self._penetration(un)
 
+    def step_pressure(self, un) -> np.ndarray:
+        """Normal force of the step at the points (``[time] contact_force``).
+
+        "endpoint": the pressure at the end of the step, alpha_C (u_nu - s)^+.
+        "discrete_gradient": C_n = 2 DG(d_{n-1}, d_n) - C_{n-1} (:func:`dg_pressure` is
+        2 DG - alpha_C d_{n-1}^+), with C_{n-1} the force of the start level; with
+        C_{n-1} the pressure there, it differs from the endpoint force only at points that
+        cross the obstacle within the step.
+        """
+        if self.contact_force == "endpoint":
+            return self.pressure(un)
+        return dg_pressure(self.start_penetration, un - self.gap, self.alpha_c) + self._shift()
+
+    def _shift(self) -> np.ndarray:
+        """alpha_C d_{n-1}^+ - C_{n-1}: zero when the start level holds the pressure."""
+        return self.alpha_c * np.maximum(self.start_penetration, 0.0) - self.level_pressure
+
+    def step_slope(self, un) -> np.ndarray:
+        """d(step_pressure)/d u_nu at the points (>= 0)."""
+        if self.contact_force == "endpoint":
+            return self.alpha_c * (un > self.gap)
+        return dg_slope(self.start_penetration, un - self.gap, self.alpha_c)
+
+    def _step_potential(self, un) -> np.ndarray:
+        """Primitive of :meth:`step_pressure` in u_nu (convex): the step's contact energy."""
+        if self.contact_force == "endpoint":
+            return self._normal_potential(un)
+        d1 = un - self.gap
+        return dg_potential(self.start_penetration, d1, self.alpha_c) + self._shift() * d1
+
     def _normal_potential(self, un) -> np.ndarray:
         """alpha_C/2 ((u_nu - s)^+)^2 at the points."""
         return 0.5 * self.alpha_c * self._penetration(un) ** 2
 
     def energy(self, un, ut) -> float:
-        """Penalty-contact plus friction potential, summed over all ranks.  Collective."""
-        local = np.dot(self.weights, self._normal_potential(un))
+        """The step's contact plus friction potential, summed over all ranks.  Collective."""
+        local = np.dot(self.weights, self._step_potential(un))
         if self.has_friction:
             local += np.dot(self.weights, self._friction_potential(ut - self.slip))
         return self.comm.allreduce(local, op=MPI.SUM)
@@ -289,7 +402,7 @@ class ContactLaw:
         un_s, ut_s = un + step * dn, ut + step * dt
         pressure, friction = self.forces(un_s, ut_s)
         value = np.dot(self.weights, dn * pressure + dt * friction)
-        slope = np.dot(self.weights, self.alpha_c * dn**2 * (un_s > self.gap))
+        slope = np.dot(self.weights, self.step_slope(un_s) * dn**2)
         if self.has_friction:
             slope += np.dot(self.weights, self.alpha_t * dt**2 * ~self._sliding(ut_s))
         return tuple(self.comm.allreduce(np.array([value, slope]), op=MPI.SUM))
@@ -312,6 +425,88 @@ class ContactLaw:
         increment = z - elastic
         self.slip = self.slip + increment
         return self.comm.allreduce(np.dot(self.weights, self.bound * np.abs(increment)), op=MPI.SUM)
+
+
+# -- energy-consistent penalty force (discrete gradient) ------------------------------
+#: below this x the closed-form energies use their Taylor series (no cancellation)
+_SERIES_BELOW = 0.5
+_SERIES_TERMS = 40
+
+
+def _x_minus_log1p(x: np.ndarray) -> np.ndarray:
+    """x - log(1 + x) >= 0 for x >= 0, without cancellation at small x."""
+    x = np.asarray(x, dtype=float)
+    small = x < _SERIES_BELOW
+    xs = np.where(small, x, 0.0)
+    # sum_{n >= 2} (-1)^n x^n / n by Horner; 40 terms at x < 0.5 leave < 1e-12 relative
+    series = np.zeros_like(xs)
+    for n in range(_SERIES_TERMS, 1, -1):
+        series = series * xs + (-1.0) ** n / n
+    with np.errstate(invalid="ignore"):
+        direct = x - np.log1p(np.where(small, 0.0, x))
+    return np.where(small, series * xs * xs, direct)
+
+
+def dg_pressure(d0: np.ndarray, d1: np.ndarray, alpha: float) -> np.ndarray:
+    """Energy-consistent normal force of a step from penetration d0 to d1 (Gamma_C points).
+
+    p = 2 DG(d0, d1) - phi'(d0), DG = (phi(d1) - phi(d0)) / (d1 - d0) the discrete
+    gradient of phi(d) = alpha/2 (d^+)^2, so that (phi'(d0) + p)/2 (d1 - d0) = phi(d1) -
+    phi(d0) exactly: the trapezoidal average of the forces at both ends of the step does
+    the work the penalty stores.  In closed form (no division by d1 - d0 where it can
+    vanish: across the obstacle |d1 - d0| >= max(|d0|, |d1|)):
+
+        both sides alike  alpha d1^+                 (the endpoint force)
+        touch-down        alpha d1^2 / (d1 - d0)     d0 <= 0 < d1
+        lift-off          alpha d0 d1 / (d0 - d1)    d1 <= 0 < d0 (a pull, <= 0)
+
+    Nondecreasing and C^1 in d1 for d0 != 0.  Not collective.
+    """
+    down, up = _crossings(d0, d1)
+    safe = np.where(down | up, d1 - d0, 1.0)
+    crossing = np.where(down, d1 * d1, d0 * d1) / np.where(down, safe, -safe)
+    return alpha * np.where(down | up, crossing, np.maximum(d1, 0.0))
+
+
+def dg_slope(d0: np.ndarray, d1: np.ndarray, alpha: float) -> np.ndarray:
+    """d p / d d1 of :func:`dg_pressure` (>= 0), the Jacobian weight.  Not collective."""
+    down, up = _crossings(d0, d1)
+    # ratios first (|r| <= 1 across the obstacle): squaring d1 - d0 could underflow
+    safe = np.where(down | up, d1 - d0, 1.0)
+    r0, r1 = d0 / safe, d1 / safe
+    crossing = np.where(down, r1 * (r1 - 2.0 * r0), r0 * r0)
+    return alpha * np.where(down | up, crossing, (d1 > 0.0).astype(float))
+
+
+def dg_potential(d0: np.ndarray, d1: np.ndarray, alpha: float) -> np.ndarray:
+    """Primitive of :func:`dg_pressure` in d1, zero at d1 = 0: convex in d1.
+
+        d0 > 0, d1 <= 0   alpha d0^2 (x - log(1 + x)),       x = -d1 / d0
+        d0 <= 0, d1 > 0   alpha m^2 (x^2/2 - x + log(1 + x)), x = d1 / m, m = -d0
+        otherwise         alpha/2 (d1^+)^2
+
+    (with m = 0 the second row is alpha/2 d1^2).  Not collective.
+    """
+    down, up = _crossings(d0, d1)
+    tiny = np.finfo(float).tiny
+    lift = d0 * d0 * _x_minus_log1p(np.where(up, -d1 / np.maximum(d0, tiny), 0.0))
+    m = np.maximum(-d0, 0.0)
+    x = np.where(down, d1 / np.maximum(m, tiny), 0.0)
+    # x^2/2 - x + log1p(x) = x^2/2 - (x - log1p(x)); at large x use the unscaled form
+    large = x >= _SERIES_BELOW
+    xs = np.where(large, 0.0, x)
+    touch_small = m * m * (0.5 * xs * xs - _x_minus_log1p(xs))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        touch_large = 0.5 * d1 * d1 - m * d1 + m * m * np.log1p(np.where(large, x, 0.0))
+    touch = np.where(large, touch_large, touch_small)
+    alike = 0.5 * np.maximum(d1, 0.0) ** 2
+    return alpha * np.where(up, lift, np.where(down, touch, alike))
+
+
+def _crossings(d0, d1) -> tuple[np.ndarray, np.ndarray]:
+    """(touch-down, lift-off) flags: the step crosses the obstacle (d = 0) at the point."""
+    closed0, closed1 = d0 > 0.0, d1 > 0.0
+    return ~closed0 & closed1, closed0 & ~closed1
 
 
 def _scipy_from_petsc(matrix: PETSc.Mat) -> sp.csr_matrix:

@@ -13,8 +13,9 @@ Two solvers, chosen by what the scene needs:
 The VI-aware line search is a line-search *pre-check* on a ``basic`` (full-step) line
 search: given the Newton update Y (PETSc steps x <- x - Y), the pre-check replaces Y by
 t* Y with t* the exact minimizer of the convex, piecewise-quadratic J_n(x - t Y).  Its
-derivative is monotone and piecewise linear in t; t* is found by Newton's method on the
-current linear piece inside a shrinking bracket (exact after finitely many pieces).  So
+derivative is monotone and piecewise linear in t (piecewise smooth where the
+discrete-gradient contact force crosses the obstacle, parefg.mechanics.contact); t* is
+found by Newton's method on the current piece inside a shrinking bracket.  So
 J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, ...)
 still applies; -snes_linesearch_type may be basic (default), bt, cp or nleqerr (see
 :data:`LINE_SEARCHES`).
@@ -202,7 +203,7 @@ class ContactStepSolver:
         self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
         self.record_energy = False
         self.residual_norm = self.tolerance = float("nan")  # of the last step
-        self._signature = None  # active set the Jacobian was built for
+        self._signature: np.ndarray | None = None  # active set the Jacobian was built for
         # active set of the iterate a Newton step started from (set before any step test)
         self._step_active: np.ndarray = np.zeros(0, dtype=bool)
         self._exact_piece = False
@@ -263,12 +264,16 @@ class ContactStepSolver:
         un, ut = self.law.kinematics(u)
         active = self.law.active_set(un, ut)
         self._step_active = active
-        changed = self._signature is None or not np.array_equal(active, self._signature)
+        # a normal force that is not affine in u (negative piece code) has a Jacobian that
+        # varies with u: rebuild it now, and again at the next call whatever the active set
+        varying = bool(np.any(self.law.piece(un, ut) < 0))
+        built = self._signature
+        changed = varying or built is None or not np.array_equal(active, built)
         if not self.comm.allreduce(changed):
             return  # same matrix: PETSc keeps the factorization
         self.a_const.copy(self.jacobian, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         add_owned_rows(self.jacobian, self.law.jacobian_rows(un, ut))
-        self._signature = active
+        self._signature = None if varying else active
         self.jacobian_builds += 1
 
     # -- the VI-aware line search ---------------------------------------------
@@ -299,7 +304,8 @@ class ContactStepSolver:
             self._exact_piece = False
             y.scale(0.0)
             return True
-        same_piece = np.array_equal(self.law.piece(un, ut), self.law.piece(un + dn, ut + dt))
+        piece = self.law.piece(un, ut)
+        same_piece = np.all(piece >= 0) and np.array_equal(piece, self.law.piece(un + dn, ut + dt))
         self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
         before = self.energy(x) if self.record_energy else 0.0
         if not self._exact_piece:
