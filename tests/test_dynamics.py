@@ -16,8 +16,9 @@ from mpi4py import MPI
 
 from parefg.discretization.operators import build_discretization
 from parefg.scene.loader import load_scene
+from parefg.timestepping.linear_solver import LinearStepSolver
 from parefg.timestepping.simulation import Simulation
-from parefg.timestepping.step_solver import ContactStepSolver, LinearStepSolver
+from parefg.timestepping.step_solver import ContactStepSolver
 
 COMM = MPI.COMM_WORLD
 
