@@ -39,7 +39,7 @@ petsc4py.init(sys.argv[:1])
 from mpi4py import MPI  # noqa: E402
 
 from parefg.discretization.operators import build_discretization  # noqa: E402
-from parefg.mechanics.contact import dg_pressure  # noqa: E402
+from parefg.mechanics.discrete_gradient import dg_pressure  # noqa: E402
 from parefg.scene.loader import load_scene  # noqa: E402
 from parefg.timestepping.simulation import Simulation  # noqa: E402
 

@@ -18,7 +18,7 @@ from mpi4py import MPI
 
 from parefg.discretization.operators import build_discretization
 from parefg.io.checkpoint import read_checkpoint, write_checkpoint
-from parefg.mechanics.contact import dg_potential, dg_pressure, dg_slope
+from parefg.mechanics.discrete_gradient import dg_potential, dg_pressure, dg_slope
 from parefg.scene.loader import load_scene
 from parefg.timestepping.simulation import Simulation
 
