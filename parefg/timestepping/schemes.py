@@ -1,4 +1,4 @@
-"""Time schemes and the time loop (SPEC 4).
+"""Time schemes, registered by name in :data:`SCHEMES`: Newmark, generalized-alpha, static (SPEC 4).
 
 Schemes are registered by name in :data:`SCHEMES`.  They write into vectors the caller
 owns (the time loop allocates its work vectors once per run).  Each step minimizes

@@ -1,4 +1,4 @@
-"""One run of a scene: operators -> initial state -> time loop -> errors (SPEC 4).
+"""One run of a scene: its operators, initial state and steps, checked as they go (SPEC 4).
 
 The loop skips what a scene does not need: without Gamma_C every step is one linear
 solve with A_const factored once (:class:`LinearStepSolver`); with Gamma_C each step is
