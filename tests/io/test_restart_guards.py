@@ -12,9 +12,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from conftest import run_parefg
+from conftest import assert_bad_input, run_parefg
 from mpi4py import MPI
-from test_cli import assert_bad_input
 
 from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError

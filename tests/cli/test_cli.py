@@ -11,12 +11,9 @@ import re
 
 import h5py
 import pytest
-from conftest import run_parefg
+from conftest import QUICK, assert_bad_input, run_parefg
 
 pytestmark = pytest.mark.serial_only
-
-# A quick run: 81 nodes, 4 steps.
-QUICK = ["--set", "time.dt=0.25", "--set", "discretization.h=0.125"]
 
 SUMMARY_KEYS = {
     "scene",
@@ -44,17 +41,6 @@ BAD_OVERRIDES = {
     "python internals": ('exact.u=["().__class__", "0"]', ["exact.u[0]", "not allowed"]),
     "python builtins": ('loads.f=["__import__(\'os\')", "0"]', ["loads.f[0]", "not allowed"]),
 }
-
-
-def assert_bad_input(result, words: list[str]) -> str:
-    """Exit 2, exactly one `parefg: error:` line containing ``words``, no traceback."""
-    assert result.returncode == 2, (result.returncode, result.stderr)
-    assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
-    lines = [line for line in result.stderr.splitlines() if line.startswith("parefg: error:")]
-    assert len(lines) == 1, result.stderr
-    for word in words:
-        assert word in lines[0], (word, lines[0])
-    return lines[0]
 
 
 @pytest.mark.parametrize("case", BAD_OVERRIDES)

@@ -1,4 +1,4 @@
-"""Guards of the stability stress matrix (scripts/stress.py): behaviour at the edges.
+"""Guards of the stability stress matrix (scripts/bench/stress.py): behaviour at the edges.
 
 Manufactured solution of every run here (scene "square", SPEC 6):
 u_1 = (1 - cos t)(1 + x) e^y, u_2 = -(1 - cos t) y e^x, sliding Tresca contact at y = 0.

@@ -15,8 +15,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-
-from tests.conftest import PAREFG, mpi_env
+from conftest import PAREFG, mpi_env
 
 pytestmark = pytest.mark.serial_only
 

@@ -152,7 +152,7 @@ def test_sweep_refuses_before_running_any_case(tmp_path):
 def test_estimate_is_within_a_factor_2_of_the_measured_peak(tmp_path):
     """square, m = 2, h = 1/32, 2 steps: summary.json peak_rss_mb against memory_per_rank.
 
-    scripts/calibrate_budget.py measures 13 cases (m = 1, 2, 3, quads and triangles,
+    scripts/bench/calibrate_budget.py measures 13 cases (m = 1, 2, 3, quads and triangles,
     1 and 2 ranks, up to 5 GB); this is the cheapest of them.  stdin stays an unwritten
     pipe: a normal run never reads it.
     """

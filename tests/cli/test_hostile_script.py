@@ -1,4 +1,4 @@
-"""scripts/hostile_inputs.py stays runnable and its checks still bite (issue 9).
+"""scripts/verify/hostile_inputs.py stays runnable and its checks still bite (issue 9).
 
 The full hostile-input matrix takes minutes and is not part of the suite; these tests list
 it, run three fast cases against this build, and run the harness against fake ``parefg``
@@ -17,7 +17,7 @@ from conftest import PAREFG, REPO, mpi_env
 
 pytestmark = pytest.mark.serial_only
 
-SCRIPT = REPO / "scripts" / "hostile_inputs.py"
+SCRIPT = REPO / "scripts" / "verify" / "hostile_inputs.py"
 
 
 def hostile(*args, parefg=PAREFG, timeout=120):

@@ -6,17 +6,17 @@ hand or by the shoelace formula on the vertex list), never from parefg.
 
 import hashlib
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REPO
 from mpi4py import MPI
 
 from parefg.errors import InputError
 from parefg.geometry.domains import build_node_cloud, orient_counter_clockwise
 
 COMM = MPI.COMM_WORLD
-PLATE_GEO = str(Path(__file__).resolve().parents[1] / "meshes" / "plate_with_hole.geo")
+PLATE_GEO = str(REPO / "meshes" / "plate_with_hole.geo")
 PLATE_PARTS = ["bottom", "top", "sides", "hole"]
 HOLE_CENTRE, HOLE_RADIUS = np.array([1.0, 0.5]), 0.25  # as written in plate_with_hole.geo
 Z_POLYGON = np.array(

@@ -15,12 +15,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from conftest import REPO
 from mpi4py import MPI
 
 from parefg.errors import InputError
 from parefg.io.output import ResultWriter, _PointRows
 
-REPO = Path(__file__).resolve().parents[1]
 N_NODES = 23
 N_CONTACT = 7
 TIMES = [0.0, 0.125, 0.25]
@@ -215,7 +215,9 @@ os._exit(0)  # dies without close(), destructors or atexit handlers
 
 @pytest.mark.serial_only
 def test_process_killed_after_two_steps(tmp_path):
-    script = CRASHING_RUN.format(tests=str(REPO / "tests"), out=str(tmp_path / "run"))
+    script = CRASHING_RUN.format(
+        tests=str(Path(__file__).resolve().parent), out=str(tmp_path / "run")
+    )
     subprocess.run([sys.executable, "-c", textwrap.dedent(script)], check=True, timeout=60)
     with h5py.File(tmp_path / "run" / "result.h5", "r") as f:
         np.testing.assert_array_equal(f["steps/step"][()], STEPS[:2])
@@ -267,7 +269,7 @@ def test_plot_run_makes_its_pngs(comm, tmp_path):
     run_dir = tmp_path / "run"
     write_full_run(comm, run_dir)
     result = subprocess.run(
-        [sys.executable, str(REPO / "scripts" / "plot_run.py"), str(run_dir)],
+        [sys.executable, str(REPO / "scripts" / "plots" / "plot_run.py"), str(run_dir)],
         capture_output=True,
         text=True,
         timeout=60,

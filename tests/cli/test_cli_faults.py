@@ -11,10 +11,9 @@ import os
 import subprocess
 
 import pytest
-from conftest import PAREFG, run_parefg
+from conftest import PAREFG, QUICK, assert_bad_input, run_parefg
 from mpi4py import MPI
 from petsc4py import PETSc
-from test_cli import QUICK, assert_bad_input
 
 from parefg.run import run_scene
 from parefg.scene.loader import load_scene
