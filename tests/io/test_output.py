@@ -15,11 +15,13 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from conftest import REPO
 from mpi4py import MPI
 
 from parefg.errors import InputError
 from parefg.io.output import ResultWriter, _PointRows
+
+# this module is also imported by a child process (CRASHING_RUN), without conftest
+REPO = Path(__file__).resolve().parents[2]
 
 N_NODES = 23
 N_CONTACT = 7

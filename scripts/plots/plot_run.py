@@ -1,6 +1,6 @@
 """Plots of one parefg run: PNGs in RUNDIR/plots/ made from RUNDIR/result.h5.
 
-    python scripts/plot_run.py RUNDIR
+    python scripts/plots/plot_run.py RUNDIR
 
 - displacement.png      deformed node cloud x + scale * u_h at a few output steps, coloured
                         by |u_h| (scale chosen so the largest displacement is 10 % of the body)

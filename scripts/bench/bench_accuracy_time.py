@@ -9,7 +9,7 @@ The GetFEM figures are the reference numbers of the project brief (P2 triangles,
 scene, same penalty contact, Tresca friction and Newmark; one process on this machine),
 not re-measured here.
 
-    .venv/bin/python scripts/bench_accuracy_time.py [--repeats 3] [--out results/]
+    .venv/bin/python scripts/bench/bench_accuracy_time.py [--repeats 3] [--out results/]
 """
 
 import statistics

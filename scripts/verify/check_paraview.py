@@ -2,7 +2,7 @@
 
 Run with ParaView's Python (Debian: `apt-get install paraview python3-paraview`):
 
-    pvbatch scripts/check_paraview.py RUNDIR
+    pvbatch scripts/verify/check_paraview.py RUNDIR
 
 For the last output time, every point array of every grid ParaView reads ("nodes",
 "contact") is compared component-wise (min and max) with the same dataset read by h5py;

@@ -5,7 +5,7 @@ statement, a scene using it, and runs ``PAREFG run scene.toml --out out`` in a f
 temporary directory.  Reported: exit code, elapsed seconds, whether the sentinel file
 SENTINEL (which the statement tries to create) exists afterwards, and the last stderr line.
 
-    python scripts/geo_statements.py [PAREFG] [--ranks 2] [-k NAME]
+    python scripts/verify/geo_statements.py [PAREFG] [--ranks 2] [-k NAME]
 """
 
 import argparse
@@ -144,7 +144,7 @@ def run_case(parefg, name, ranks, timeout):
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument(
-        "parefg", nargs="?", default=str(Path(__file__).parents[1] / ".venv/bin/parefg")
+        "parefg", nargs="?", default=str(Path(__file__).parents[2] / ".venv/bin/parefg")
     )
     parser.add_argument("--ranks", type=int, default=1)
     parser.add_argument("--timeout", type=float, default=30)

@@ -6,7 +6,7 @@ median of 5 repeats of the neighbour search plus ``MLS.evaluate`` with gradients
 warm-up call first, so numba compilation is not timed).  Prints a markdown table and
 writes results/bench_mls.csv.
 
-Usage: .venv/bin/python scripts/bench_mls.py [--repeats N] [--h H]
+Usage: .venv/bin/python scripts/bench/bench_mls.py [--repeats N] [--h H]
 """
 
 import time

@@ -2,7 +2,7 @@
 # The README's error-vs-time figure: square scene, m = 1 and 2, h and dt refined together.
 # Writes results/sweep-square*/sweep.csv and error_vs_time.png (via `parefg sweep`).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 mkdir -p results
 .venv/bin/parefg sweep square --out results/sweep-time-vs-error \
     --vary discretization.degree=1,2 \

@@ -6,7 +6,7 @@ linear solve per step). An observer samples this process's current resident set
 (/proc/self/statm; the largest rank's under mpirun) at the chosen steps. Prints a table
 and writes results/bench_memory_np<P>.csv.
 
-    nice .venv/bin/python scripts/bench_memory.py [--steps 1000,10000,100000]
+    nice .venv/bin/python scripts/bench/bench_memory.py [--steps 1000,10000,100000]
 """
 
 import sys

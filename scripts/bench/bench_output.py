@@ -5,7 +5,7 @@ with an output at every step, through run_scene; the output phase of summary.jso
 (fields, HDF5 flushes, the XDMF index, the per-step table) divided by the number of
 outputs must not grow with it. Prints a table and writes results/bench_output_np<P>.csv.
 
-    nice .venv/bin/python scripts/bench_output.py [--steps 1000,10000]
+    nice .venv/bin/python scripts/bench/bench_output.py [--steps 1000,10000]
 """
 
 import sys

@@ -33,7 +33,7 @@ and its ranks included).  The checks of a case:
 
 Usage::
 
-    .venv/bin/python scripts/hostile_inputs.py [--parefg PATH] [-k SUBSTRING ...]
+    .venv/bin/python scripts/verify/hostile_inputs.py [--parefg PATH] [-k SUBSTRING ...]
         [--jobs N] [--list] [--out DIR] [--keep] [--timeout-scale F]
 
 ``-k`` selects cases whose id or item contains SUBSTRING (repeatable), ``--list`` lists
@@ -62,7 +62,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 MEMORY_LIMIT = 4 * 1024**3  # bytes of address space per process
 FAST = 15.0  # seconds: a case that must be refused before any real work
 RUN = 40.0  # seconds: a case that meshes, assembles and steps a small scene

@@ -3,7 +3,7 @@
 # packages, then a virtual environment on Debian's python3 that sees them.
 # Idempotent: installs only what is missing.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 
 missing=()
 for pkg in "$@"; do
@@ -26,7 +26,7 @@ petsc_dir=/usr/lib/petscdir/petsc3.18/x86_64-linux-gnu-real
 site=$(.venv/bin/python -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")
 echo "$petsc_dir/lib/python3/dist-packages" > "$site/parefg-petsc4py.pth"
 
-export PIP_CONSTRAINT="$PWD/scripts/constraints.txt"
+export PIP_CONSTRAINT="$PWD/scripts/setup/constraints.txt"
 .venv/bin/pip install -q --disable-pip-version-check --no-deps -e .
 .venv/bin/pip install -q --disable-pip-version-check pytest hypothesis ruff mypy
 .venv/bin/python -c "import parefg, petsc4py, mpi4py, h5py, gmsh, numpy; assert numpy.__version__ < '2'"

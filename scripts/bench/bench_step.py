@@ -5,8 +5,8 @@ time; then time a single solve with the step operator's existing factorization (
 floor of any step). Prints medians over the steps and repeats, the ratio step / floor,
 Newton iterations and factorizations; writes results/bench_step_np<P>.csv.
 
-    .venv/bin/python scripts/bench_step.py [--repeats 3]
-    mpirun -n 2 .venv/bin/python scripts/bench_step.py
+    .venv/bin/python scripts/bench/bench_step.py [--repeats 3]
+    mpirun -n 2 .venv/bin/python scripts/bench/bench_step.py
 """
 
 import statistics

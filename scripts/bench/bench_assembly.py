@@ -5,7 +5,7 @@ For m = 1, 2 at h = 1/32, 1/64 on the square scene, ``build_discretization`` is 
 nonzeros from ``disc.stiffness.getInfo()["nz_used"]`` (summed over ranks).  Rank 0
 prints a markdown table and writes results/bench_assembly_np<ranks>.csv.
 
-Usage: [mpirun -n 2] .venv/bin/python scripts/bench_assembly.py [--repeats N]
+Usage: [mpirun -n 2] .venv/bin/python scripts/bench/bench_assembly.py [--repeats N]
 """
 
 import time

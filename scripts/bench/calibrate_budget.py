@@ -6,9 +6,9 @@ them beside the budget's estimate (parefg.discretization.budget.memory_per_rank 
 estimated size) and their ratio.  The estimate should stay within a factor 2 of the
 measurement; writes results/calibrate_budget.csv.
 
-    .venv/bin/python scripts/calibrate_budget.py            # about 2 minutes
-    .venv/bin/python scripts/calibrate_budget.py --quick    # three small cases
-    .venv/bin/python scripts/calibrate_budget.py --large    # 2 and 6 GB, a few minutes
+    .venv/bin/python scripts/bench/calibrate_budget.py            # about 2 minutes
+    .venv/bin/python scripts/bench/calibrate_budget.py --quick    # three small cases
+    .venv/bin/python scripts/bench/calibrate_budget.py --large    # 2 and 6 GB, a few minutes
 """
 
 import json

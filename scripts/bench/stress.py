@@ -20,7 +20,7 @@ the plate with a hole and the clustered cloud (meshes/); a too-small support; m 
 nu -> 1/2; very soft and very stiff material; repeated frictional impacts (contact
 closings and openings counted from active_contact_points).
 
-Usage: ``.venv/bin/python scripts/stress.py [--out results] [--keep]``; prints a markdown
+Usage: ``.venv/bin/python scripts/bench/stress.py [--out results] [--keep]``; prints a markdown
 table and writes OUT/stress.csv.  About 3 minutes on 2 cores.
 """
 
@@ -40,7 +40,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PAREFG = str(Path(sys.executable).with_name("parefg"))
 ENERGY_COLUMNS = ("kinetic_energy", "elastic_energy", "penalty_energy", "dissipated_energy")
 EXACT_U = ["(1 - cos(t)) * (1 + x) * exp(y)", "-(1 - cos(t)) * y * exp(x)"]  # SPEC 6

@@ -9,7 +9,7 @@ Runs, through :func:`parefg.run.run_scene` (so also under ``mpirun -n P``):
 Prints markdown tables with rates fitted by least squares on log-log data (the last column,
 "rate", is the slope between consecutive rows) and writes one CSV per study to results/.
 
-Usage: ``.venv/bin/python scripts/convergence_tables.py [--quick] [--out results]``
+Usage: ``.venv/bin/python scripts/verify/convergence_tables.py [--quick] [--out results]``
 """
 
 from __future__ import annotations

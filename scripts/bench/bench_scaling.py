@@ -6,7 +6,7 @@ phase times (mesh, mls, assembly, factorization, solve, output, total), speedups
 t1 / t2 and parallel efficiency t1 / (2 t2), and peak RSS of the largest rank.
 Prints markdown tables and writes results/bench_scaling.csv.
 
-    .venv/bin/python scripts/bench_scaling.py [--h 0.0125,0.00625,0.003125] [--repeats 3]
+    .venv/bin/python scripts/bench/bench_scaling.py [--h 0.0125,0.00625,0.003125] [--repeats 3]
 """
 
 import json
