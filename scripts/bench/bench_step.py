@@ -21,9 +21,7 @@ import parefg  # noqa: F401  (PETSC_DIR)
 petsc4py.init(sys.argv[:1])
 from mpi4py import MPI  # noqa: E402
 
-from parefg.discretization.operators import build_discretization  # noqa: E402
-from parefg.scene.loader import load_scene  # noqa: E402
-from parefg.timestepping.simulation import Simulation  # noqa: E402
+from parefg.run import prepare  # noqa: E402
 
 CASES = [
     (
@@ -37,8 +35,8 @@ CASES = [
 
 def step_times(comm, overrides):
     """Per-step solve times, the floor (one solve with the reused factor), counts."""
-    scene = load_scene("square", overrides)
-    sim = Simulation(comm, scene, build_discretization(comm, scene))
+    sim = prepare(comm, "square", overrides)
+    scene = sim.scene
     state, times = sim.start(), []
     for n in range(1, scene.n_steps + 1):
         before = sim.timings["solve"]

@@ -1,13 +1,15 @@
 """Convergence studies of the manufactured scenes "square" and "z" (SPEC 6), as markdown tables.
 
-Runs, through :func:`parefg.run.run_scene` (so also under ``mpirun -n P``):
+Each study of each scene is one ``parefg sweep`` along one axis, run through
+:func:`parefg.sweep.run_cases` (so also under ``mpirun -n P``):
 
 * L2 / H1 relative errors vs h for m = 1 and m = 2 (dt = 0.0125, time error below space error);
 * L2 vs dt at h = 1/32, m = 2 (Newmark beta = gamma = 1/2: second order);
 * L2 / H1 vs alpha_contact = 1 .. 1e4 E/h at h = 1/16, m = 2.
 
-Prints markdown tables with rates fitted by least squares on log-log data (the last column,
-"rate", is the slope between consecutive rows) and writes one CSV per study to results/.
+Prints markdown tables with the rates of :func:`parefg.sweep.fitted_rate` (least squares on
+log-log data: the "fitted" row over all rows, each "rate" column between consecutive rows) and
+writes one CSV per study to results/.
 
 Usage: ``.venv/bin/python scripts/verify/convergence_tables.py [--quick] [--out results]``
 """
@@ -22,8 +24,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from parefg.run import run_scene
-from parefg.scene.loader import load_scene
+from parefg.sweep import fitted_rate, run_cases
 
 SCENES = ("square", "z")
 
@@ -41,20 +42,16 @@ def studies(quick: bool) -> list[tuple[str, str, list[float], list[str]]]:
     ]  # fmt: skip
 
 
-def run_case(comm, scene_name: str, overrides: list[str], workdir: Path, tag: str) -> dict:
-    """One run; returns its summary (errors, timings, iterations).  Collective."""
-    scene = load_scene(scene_name, overrides)
-    out = workdir / tag if comm.rank == 0 else None
-    return run_scene(comm, scene, out=str(comm.bcast(out)), quiet=True)
+def run_study(comm, scene_name: str, key: str, settings: list, fixed: list, out: str) -> list:
+    """The rows of a sweep of ``key`` over ``settings`` (``fixed`` overrides).  Collective."""
+    vary = [f"{key}={','.join(str(setting) for setting in settings)}"]
+    rows, _ = run_cases(comm, scene_name, vary, fixed, out, progress=False)
+    return rows
 
 
 def pairwise_rates(xs, ys) -> list[float]:
-    logs = np.log(np.asarray([xs, ys], dtype=float))
-    return [np.nan] + list(np.diff(logs[1]) / np.diff(logs[0]))
-
-
-def fitted(xs, ys) -> float:
-    return float(np.polyfit(np.log(xs), np.log(ys), 1)[0])
+    """The rate between each row and the one before (nan for the first row)."""
+    return [np.nan] + [fitted_rate(xs[i - 1 : i + 1], ys[i - 1 : i + 1]) for i in range(1, len(xs))]
 
 
 def table(title: str, key: str, rows: list[dict]) -> str:
@@ -70,8 +67,8 @@ def table(title: str, key: str, rows: list[dict]) -> str:
             f"{h1_rate:.2f} | {row['newton']} | {row['seconds']:.2f} |"
         )
     lines.append(
-        f"| fitted | | {fitted(xs, [r['l2_rel'] for r in rows]):.2f} | "
-        f"| {fitted(xs, [r['h1_rel'] for r in rows]):.2f} | | |"
+        f"| fitted | | {fitted_rate(xs, [r['l2_rel'] for r in rows]):.2f} | "
+        f"| {fitted_rate(xs, [r['h1_rel'] for r in rows]):.2f} | | |"
     )
     return "\n".join(lines).replace("| nan |", "| |")
 
@@ -84,20 +81,21 @@ def main() -> None:
     comm = MPI.COMM_WORLD
     results = Path(args.out)
     with tempfile.TemporaryDirectory() as workdir:
+        # every rank writes into rank 0's directory
+        workdir = Path(comm.bcast(workdir, root=0))
         for s_index, (study, key, values, fixed) in enumerate(studies(args.quick)):
+            # alpha_contact is given in units of E/h (h = 1/16)
+            settings = [v / 0.0625 if key == "penalty.alpha_contact" else v for v in values]
             all_rows = []
             for scene_name in SCENES:
-                rows = []
-                for v_index, value in enumerate(values):
-                    setting = value / 0.0625 if key == "penalty.alpha_contact" else value
-                    tag = f"{s_index}-{scene_name}-{v_index}"
-                    summary = run_case(comm, scene_name, [*fixed, f"{key}={setting}"],
-                                       Path(workdir), tag)  # fmt: skip
-                    rows.append(
-                        {"scene": scene_name, "study": study, "value": value,
-                         **summary["errors"], "newton": summary["newton_iterations"],
-                         "seconds": summary["timings"]["total"]}
-                    )  # fmt: skip
+                out = str(workdir / f"{s_index}-{scene_name}")
+                cases = run_study(comm, scene_name, key, settings, fixed, out)
+                rows = [
+                    {"scene": scene_name, "study": study, "value": value,
+                     "l2_rel": case["l2_rel"], "h1_rel": case["h1_rel"],
+                     "newton": case["newton"], "seconds": case["time"]}
+                    for value, case in zip(values, cases, strict=True)
+                ]  # fmt: skip
                 if comm.rank == 0:
                     print(table(f"{scene_name}: error vs {study}", key, rows) + "\n", flush=True)
                 all_rows += rows

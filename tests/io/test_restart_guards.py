@@ -15,12 +15,9 @@ import pytest
 from conftest import assert_bad_input, run_parefg
 from mpi4py import MPI
 
-from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError
 from parefg.io.checkpoint import read_checkpoint, write_checkpoint
-from parefg.run import run_scene
-from parefg.scene.loader import load_scene
-from parefg.timestepping.simulation import Simulation
+from parefg.run import prepare, run_scene
 
 
 def _final_displacement(run_dir):
@@ -94,8 +91,7 @@ RESTART_ARGS = ["run", "square", "--quiet"] + [x for kv in SCENE for x in ("--se
 
 
 def _started(comm, overrides=()):
-    scene = load_scene("square", [*SCENE, *overrides])
-    sim = Simulation(comm, scene, build_discretization(comm, scene))
+    sim = prepare(comm, "square", [*SCENE, *overrides])
     return sim, sim.start()
 
 

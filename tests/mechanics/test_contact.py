@@ -11,10 +11,10 @@ import pytest
 from conftest import run_parefg
 from mpi4py import MPI
 
-from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError
 from parefg.mechanics.contact import OPEN, SLIP, STICK
 from parefg.mechanics.friction import FRICTION_LAWS
+from parefg.run import prepare
 from parefg.scene.loader import load_scene
 from parefg.timestepping.simulation import Simulation
 
@@ -22,8 +22,7 @@ COMM = MPI.COMM_WORLD
 
 
 def simulation(scene_name: str, overrides=()) -> Simulation:
-    scene = load_scene(scene_name, list(overrides))
-    return Simulation(COMM, scene, build_discretization(COMM, scene))
+    return prepare(COMM, scene_name, overrides)
 
 
 def advance(sim: Simulation, state, first: int, last: int):

@@ -19,6 +19,7 @@ from mpi4py import MPI
 from parefg.discretization.operators import build_discretization
 from parefg.errors import DataError, InputError, SolverError
 from parefg.guards import DataGuard
+from parefg.run import prepare
 from parefg.scene.loader import load_scene
 from parefg.timestepping.simulation import Simulation
 
@@ -54,8 +55,7 @@ def shared_tmp(tmp_path_factory):
 
 
 def simulation(path, overrides=()):
-    scene = load_scene(path, list(overrides))
-    return Simulation(COMM, scene, build_discretization(COMM, scene))
+    return prepare(COMM, path, overrides)
 
 
 def one_error_line(done, code):

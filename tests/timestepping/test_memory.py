@@ -11,9 +11,7 @@ its header at 50 DOFs), so a single vector leaked per step fails it.
 import pytest
 from mpi4py import MPI
 
-from parefg.discretization.operators import build_discretization
-from parefg.scene.loader import load_scene
-from parefg.timestepping.simulation import Simulation
+from parefg.run import prepare
 
 SLOPE_BOUND = 1024  # bytes per step
 TINY = ["discretization.h=0.25", "discretization.degree=1", "time.dt=1e-3", "time.T=10"]
@@ -28,8 +26,7 @@ def resident_bytes() -> int:
 def rss_slope(overrides, warm_up: int, measured: int) -> float:
     """Growth of the resident set per step between step ``warm_up`` and the last one."""
     comm = MPI.COMM_WORLD
-    scene = load_scene("square", TINY + overrides)
-    sim = Simulation(comm, scene, build_discretization(comm, scene), keep_history=False)
+    sim = prepare(comm, "square", TINY + overrides, keep_history=False)
     state = sim.start()
     for n in range(1, warm_up + 1):
         state = sim.step(state, n)
@@ -56,8 +53,8 @@ def test_resident_memory_is_flat_over_steps(overrides, measured):
 def test_history_keeps_only_the_last_row_when_asked():
     """A long run keeps one row in memory (the writer has the rest), and the max Newton."""
     comm = MPI.COMM_WORLD
-    scene = load_scene("square", TINY[:-1] + ["time.T=0.01"])
-    sim = Simulation(comm, scene, build_discretization(comm, scene), keep_history=False)
+    sim = prepare(comm, "square", TINY[:-1] + ["time.T=0.01"], keep_history=False)
+    scene = sim.scene
     state = sim.start()
     for n in range(1, scene.n_steps + 1):
         state = sim.step(state, n)

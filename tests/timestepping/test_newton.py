@@ -9,10 +9,8 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError, SolverError
-from parefg.scene.loader import load_scene
-from parefg.timestepping.simulation import Simulation
+from parefg.run import prepare
 
 COMM = MPI.COMM_WORLD
 SHORT = ["discretization.h=0.125", "discretization.degree=1", "time.T=0.2"]
@@ -38,8 +36,7 @@ def petsc_options():
 
 
 def _simulation(overrides):
-    scene = load_scene("square", list(overrides))
-    return Simulation(COMM, scene, build_discretization(COMM, scene))
+    return prepare(COMM, "square", overrides)
 
 
 def _true_residual(solver, b, u) -> float:
@@ -154,10 +151,9 @@ def test_other_line_search_types_give_the_basic_result(petsc_options, direct_err
 
 
 def _impact_displacement():
-    scene = load_scene("impact", ["time.T=0.4"])
-    sim = Simulation(COMM, scene, build_discretization(COMM, scene))
+    sim = prepare(COMM, "impact", ["time.T=0.4"])
     state = sim.start()
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, sim.scene.n_steps + 1):
         state = sim.step(state, n)
     return state.u.copy()
 

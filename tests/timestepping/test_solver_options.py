@@ -5,15 +5,12 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.discretization.operators import build_discretization
-from parefg.scene.loader import load_scene
-from parefg.timestepping.simulation import Simulation
+from parefg.run import prepare
 
 
 def _simulation(overrides):
     comm = MPI.COMM_WORLD
-    scene = load_scene("square", overrides)
-    return Simulation(comm, scene, build_discretization(comm, scene))
+    return prepare(comm, "square", overrides)
 
 
 def test_rigid_body_modes_are_in_the_kernel_of_the_stiffness():

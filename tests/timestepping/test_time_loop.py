@@ -18,10 +18,8 @@ import numpy as np
 import pytest
 from conftest import PAREFG, mpi_env
 
-from parefg.discretization.operators import build_discretization
-from parefg.run import _output_fields, run_scene
+from parefg.run import _output_fields, prepare, run_scene
 from parefg.scene.loader import load_scene
-from parefg.timestepping.simulation import Simulation
 
 TINY = ["discretization.h=0.25", "discretization.degree=1"]
 FREE = ['boundary.bottom.type="dirichlet"']  # no Gamma_C: one linear solve per step
@@ -87,8 +85,7 @@ def test_output_fields_selects_the_datasets(comm, run_dir, fields, node, contact
 
 
 def test_unrequested_von_mises_builds_no_gradient_operator(comm):
-    scene = load_scene("square", [*TINY, "time.dt=0.25", "output.fields=['u', 'contact']"])
-    sim = Simulation(comm, scene, build_discretization(comm, scene))
+    sim = prepare(comm, "square", [*TINY, "time.dt=0.25", "output.fields=['u', 'contact']"])
     node_fields, contact_fields = _output_fields(sim, sim.start())
     assert sorted(node_fields) == ["displacement"] and "status" in contact_fields
     assert sim.disc.nodes._gradients is None  # the nodal gradient operator was never built

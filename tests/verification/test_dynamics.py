@@ -5,8 +5,9 @@ The manufactured solution of the "square" and "z" scenes (SPEC 6),
     u_1 = (1 - cos t)(1 + x) e^y,   u_2 = -(1 - cos t) y e^x,
 
 slides on Gamma_C = {y = 0} at the Tresca bound; the scenes derive loads, tractions,
-Dirichlet data and g from it.  Rates are fitted with ``np.polyfit(log h, log e, 1)`` on
-sizes small enough to keep each test to a few seconds (measured values in the comments).
+Dirichlet data and g from it.  Rates are fitted with ``parefg.sweep.fitted_rate``
+(``np.polyfit(log h, log e, 1)``) on sizes small enough to keep each test to a few seconds
+(measured values in the comments).
 Every test runs serially and under ``mpirun -n 2`` (all calls collective).
 """
 
@@ -14,8 +15,8 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from parefg.discretization.operators import build_discretization
-from parefg.scene.loader import load_scene
+from parefg.run import prepare
+from parefg.sweep import fitted_rate
 from parefg.timestepping.simulation import Simulation
 from parefg.timestepping.step_solver import ContactStepSolver, LinearStepSolver
 
@@ -24,10 +25,9 @@ COMM = MPI.COMM_WORLD
 
 def run(scene_name: str, overrides=()) -> tuple[Simulation, object]:
     """Run a scene to T in-process; return the simulation and the final state.  Collective."""
-    scene = load_scene(scene_name, list(overrides))
-    sim = Simulation(COMM, scene, build_discretization(COMM, scene))
+    sim = prepare(COMM, scene_name, overrides)
     state = sim.start()
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, sim.scene.n_steps + 1):
         state = sim.step(state, n)
     return sim, state
 
@@ -35,11 +35,6 @@ def run(scene_name: str, overrides=()) -> tuple[Simulation, object]:
 def errors(scene_name: str, overrides) -> dict[str, float]:
     sim, state = run(scene_name, overrides)
     return sim.errors(state.u, sim.scene.T)
-
-
-def fitted_rate(sizes, errs) -> float:
-    """Slope of log(error) against log(size)."""
-    return float(np.polyfit(np.log(sizes), np.log(errs), 1)[0])
 
 
 @pytest.mark.parametrize("scene_name", ["square", "z"])

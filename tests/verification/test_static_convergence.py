@@ -7,19 +7,17 @@ Exact solution (smooth, not in the MLS basis of any degree)::
 solved as one static load step (time.scheme = "static", T = dt = 1); the body force,
 the Dirichlet data and the tractions are derived from [exact] by the scene loader.
 No contact.  The relative L2 and H1-seminorm errors at h = 1/8, 1/16, 1/32 are fitted
-with ``np.polyfit(log h, log e, 1)`` and the slopes asserted against the rates of
-the paper's estimate (m + 1 in L2, m in H1) with a margin:
+with ``parefg.sweep.fitted_rate`` (``np.polyfit(log h, log e, 1)``) and the slopes asserted
+against the rates of the paper's estimate (m + 1 in L2, m in H1) with a margin:
 m = 1: L2 >= 1.8, H1 >= 0.9;  m = 2: L2 >= 2.6, H1 >= 1.7.
 
 Collective: every rank loads the scene, builds and solves; the errors are global.
 """
 
-import numpy as np
 import pytest
 
-from parefg.discretization.operators import build_discretization
-from parefg.scene.loader import load_scene
-from parefg.timestepping.simulation import Simulation
+from parefg.run import prepare
+from parefg.sweep import fitted_rate
 
 EXACT_U = '["sin(x) * exp(y) / 2", "cos(x + y) / 3"]'
 
@@ -52,9 +50,9 @@ def write_static_scene(path, shape: str) -> str:
 
 def static_errors(comm, scene_path: str, overrides: list[str]) -> dict[str, float]:
     """Relative L2 / H1-seminorm errors of the one-step static solution.  Collective."""
-    scene = load_scene(scene_path, overrides)
+    simulation = prepare(comm, scene_path, overrides)
+    scene = simulation.scene
     assert scene.n_steps == 1 and scene.scheme == "static"
-    simulation = Simulation(comm, scene, build_discretization(comm, scene))
     state = simulation.step(simulation.start(), 1)
     return simulation.errors(state.u, scene.T)
 
@@ -62,9 +60,8 @@ def static_errors(comm, scene_path: str, overrides: list[str]) -> dict[str, floa
 def fitted_rates(comm, scene_path: str, overrides_of_h) -> tuple[float, float, list]:
     """Slopes of log e_L2 and log e_H1 against log h over H_VALUES.  Collective."""
     errors = [static_errors(comm, scene_path, overrides_of_h(h)) for h in H_VALUES]
-    log_h = np.log(H_VALUES)
-    l2_rate = np.polyfit(log_h, np.log([e["l2_rel"] for e in errors]), 1)[0]
-    h1_rate = np.polyfit(log_h, np.log([e["h1_rel"] for e in errors]), 1)[0]
+    l2_rate = fitted_rate(H_VALUES, [e["l2_rel"] for e in errors])
+    h1_rate = fitted_rate(H_VALUES, [e["h1_rel"] for e in errors])
     return l2_rate, h1_rate, errors
 
 

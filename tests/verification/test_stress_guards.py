@@ -12,9 +12,7 @@ import pytest
 from conftest import run_parefg
 from mpi4py import MPI
 
-from parefg.discretization.operators import build_discretization
-from parefg.scene.loader import load_scene
-from parefg.timestepping.simulation import Simulation
+from parefg.run import prepare
 
 COARSE = ["discretization.h=0.125", "discretization.degree=1"]
 
@@ -61,8 +59,8 @@ def test_alpha_1e14_converges(tmp_path):
 def errors_at_T(jitter: float) -> dict:
     """Relative errors at T = 0.5 on square, h = 1/8, m = 1, dt = 0.05 (collective)."""
     comm = MPI.COMM_WORLD
-    scene = load_scene("square", [*COARSE, "time.T=0.5", f"discretization.jitter={jitter}"])
-    sim = Simulation(comm, scene, build_discretization(comm, scene))
+    sim = prepare(comm, "square", [*COARSE, "time.T=0.5", f"discretization.jitter={jitter}"])
+    scene = sim.scene
     state = sim.start()
     for n in range(1, scene.n_steps + 1):
         state = sim.step(state, n)
