@@ -1475,7 +1475,7 @@ def polygon_cases() -> list[Case]:
 
 
 def baseline_cases() -> list[Case]:
-    """What parefg handles today (tests/test_cli.py, tests/test_fuzz.py), for completeness."""
+    """What parefg handles today (see tests/cli/test_cli.py, tests/scene/test_fuzz.py)."""
     payload = "__import__('os').system('touch @SENTINEL@')"
     cases = [
         Case(
