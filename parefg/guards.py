@@ -21,6 +21,7 @@ import numpy as np
 import scipy.linalg
 from petsc4py import PETSc
 
+from parefg.boundary import BoundaryKind
 from parefg.errors import DataError, InputError, SolverError
 
 # Data beyond this size are refused with the non-finite ones: their squares (energies,
@@ -228,7 +229,7 @@ def require_constraints(scene) -> None:
     if scene.scheme != "static":
         return
     kinds = {bc.kind for bc in scene.boundaries.values()}
-    if kinds & {"dirichlet", "contact"}:
+    if kinds & {BoundaryKind.DIRICHLET, BoundaryKind.CONTACT}:
         return
     raise InputError(
         f'scene {scene.name}: time.scheme = "static" needs a dirichlet or contact boundary '

@@ -12,25 +12,20 @@ from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
-from petsc4py import PETSc
 
 from parefg import __version__
 from parefg.discretization.budget import check_problem_size
 from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError, Interrupted, SolverError
-from parefg.io.checkpoint import read_checkpoint, write_checkpoint
+from parefg.io.checkpoint import read_checkpoint
 from parefg.io.monitors import Progress, StopRequest
+from parefg.io.observers import CheckpointObserver, ResultsObserver
 from parefg.io.output import ResultWriter
 from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
 from parefg.profiling import factorization_stats, phase, start_logging
 from parefg.scene.loader import load_scene
+from parefg.timestepping.loop import Callback, Observer, time_loop
 from parefg.timestepping.simulation import Simulation
-
-# [output] fields -> node datasets of each (the "contact" entry writes the Gamma_C fields)
-NODE_FIELDS = {"u": "displacement", "v": "velocity", "a": "acceleration", "von_mises": "von_mises"}
-# steps between collective PETSc.garbage_cleanup calls: the loop allocates no PETSc object
-# per step, this frees what callbacks or observers may still drop
-GARBAGE_EVERY = 1000
 
 
 def plan_output_dir(comm, scene_name: str, requested: str | None) -> Path:
@@ -138,45 +133,6 @@ def _uncreatable(path: Path, label: str) -> str | None:
     return None
 
 
-def _output_fields(sim: Simulation, state) -> tuple[dict, dict]:
-    """The [output] fields: at the nodes u_h, velocity, acceleration, von Mises; the contact
-    state at the Gamma_C points.  Collective.
-
-    Only what the scene asks for is computed: without von_mises the nodal gradient
-    operator (the largest operator) is never built.  Before the first step the status
-    is open and the tangential traction 0 (no step has been solved yet).
-    """
-    nodes, scene, wanted = sim.disc.nodes, sim.scene, set(sim.scene.output_fields)
-    vectors = {"u": state.u, "v": state.v, "a": state.a}
-    node_fields = {
-        NODE_FIELDS[key]: nodes.evaluate(vector) for key, vector in vectors.items() if key in wanted
-    }
-    if "von_mises" in wanted:
-        node_fields["von_mises"] = _von_mises(scene, nodes.evaluate_gradient(state.u))
-    contact_fields = {}
-    if sim.law is not None and "contact" in wanted:
-        law = sim.law
-        un = law.kinematics(state.u)[0]
-        contact_fields = {
-            "gap": law.gap - un,
-            "normal_pressure": law.pressure(un),
-            "tangential_traction": law.step_friction,
-            "status": law.step_status,
-        }
-    return node_fields, contact_fields
-
-
-def _von_mises(scene, grads: np.ndarray) -> np.ndarray:
-    """Plane-strain von Mises stress from displacement gradients (n, 2, 2)."""
-    strain = 0.5 * (grads + np.swapaxes(grads, 1, 2))
-    trace = strain[:, 0, 0] + strain[:, 1, 1]
-    sxx = scene.lam * trace + 2 * scene.mu * strain[:, 0, 0]
-    syy = scene.lam * trace + 2 * scene.mu * strain[:, 1, 1]
-    szz = scene.lam * trace  # plane strain
-    sxy = 2 * scene.mu * strain[:, 0, 1]
-    return np.sqrt(0.5 * ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2) + 3 * sxy**2)
-
-
 def _writer(comm, sim: Simulation, out_dir: Path, metadata: dict) -> ResultWriter:
     disc = sim.disc
     contact = disc.contact
@@ -263,62 +219,30 @@ def _run(
     say(f"parefg {__version__}: scene {scene.name} on {comm.size} rank(s) -> {out_dir}")
     disc = build_discretization(comm, scene, budget)
     stop.reclaim()  # meshing (gmsh) may have replaced the SIGINT handler
-    with petsc_configuration(comm, "the solvers", scene.solver_options):
-        sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
-        state, first = sim.start(), 1  # sets up the mass solve (-mass_ options) too
+    sim, state, first = _start(comm, scene, disc, restart)
     say(
         f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "
         f"degree {scene.degree}, {'contact' if sim.law else 'no contact'}"
     )
-    if restart is not None:
-        state, done, last_row = read_checkpoint(comm, Path(restart), sim)
-        state, first = sim.resume(state, done, last_row), done + 1
-    created = create_output_dir(comm, out_dir, out)
-    metadata = {"params": scene.params, "version": __version__, "mpi_ranks": comm.size}
-    try:
-        with phase(sim.timings, "output"):
-            writer = _writer(comm, sim, out_dir, metadata)
-    except BaseException:
-        if comm.rank == 0:
-            remove_empty_dirs(created)
-        raise
+    writer = _open_writer(comm, sim, out_dir, out)
+    results = ResultsObserver(writer)
     if restart is None:
-        writer.append_history(sim.history[0])  # the t = 0 row
-        if _is_output_step(0, scene):
-            with phase(sim.timings, "output"):
-                writer.write_step(0, 0.0, *_output_fields(sim, state))
-    progress = Progress(comm, scene.n_steps, quiet, first)
+        results.write_initial(sim, state)
+    loop_observers: list[Observer] = [results]
+    if checkpoint_every > 0:
+        loop_observers.append(CheckpointObserver(out_dir / "checkpoint.h5", checkpoint_every))
+    loop_observers += [Progress(comm, scene.n_steps, quiet, first)]
+    loop_observers += [Callback(observer) for observer in observers]
     try:
-        for n in range(first, scene.n_steps + 1):
-            if fail_at_step is not None and n == fail_at_step:
-                raise SolverError(f"injected failure at step {n} (--fail-at-step)")
-            state = sim.step(state, n)
-            row = sim.history[-1]
-            # the one decision per step every rank takes together (a signal at the final
-            # step changes nothing: the run is complete)
-            number = stop.agreed() if n < scene.n_steps else 0
-            with phase(sim.timings, "output"):
-                writer.append_history(row)
-                if _is_output_step(n, scene) or number:
-                    node_fields, contact_fields = _output_fields(sim, state)
-                    sim.check_fields(n, {**node_fields, **contact_fields})
-                    writer.write_step(n, row["time"], node_fields, contact_fields)
-                if checkpoint_every > 0 and n % checkpoint_every == 0:
-                    write_checkpoint(comm, out_dir / "checkpoint.h5", sim, state, n)
-            progress.update(n, row["time"], row["newton_iterations"])
-            for observer in observers:
-                observer(n, sim, state)
-            if n % GARBAGE_EVERY == 0:
-                PETSc.garbage_cleanup(comm)
-            if number:
-                name = StopRequest.name(number)
-                message = f"interrupted by {name} after step {n} of {scene.n_steps}"
-                raise Interrupted(f"{message}; results so far in {out_dir}", number)
+        state = time_loop(sim, state, first, loop_observers, stop, fail_at_step)
     except SolverError as error:
         status = "interrupted" if isinstance(error, Interrupted) else "failed"
         summary = _summary(comm, scene, disc, sim, start, status=status)
         _write_summary(comm, out_dir, summary)
         writer.close(_flat(summary))
+        if isinstance(error, Interrupted):
+            message = f"{error}; results so far in {out_dir}"
+            raise Interrupted(message, error.exit_code - 128) from None
         raise
     summary = _summary(comm, scene, disc, sim, start, errors=sim.errors(state.u, scene.T))
     writer.close(_flat(summary))
@@ -329,10 +253,28 @@ def _run(
     return summary
 
 
-def _is_output_step(n: int, scene) -> bool:
-    """Step n (0: the initial state) is written: the final one, and every ``every``-th."""
-    every = scene.output_every
-    return n == scene.n_steps or (every > 0 and n % every == 0)
+def _start(comm, scene, disc, restart: str | None):
+    """The simulation and the level it starts from: t = 0, or a checkpoint.  Collective."""
+    with petsc_configuration(comm, "the solvers", scene.solver_options):
+        sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
+        state, first = sim.start(), 1  # sets up the mass solve (-mass_ options) too
+    if restart is not None:
+        state, done, last_row = read_checkpoint(comm, Path(restart), sim)
+        state, first = sim.resume(state, done, last_row), done + 1
+    return sim, state, first
+
+
+def _open_writer(comm, sim, out_dir: Path, out: str | None) -> ResultWriter:
+    """Create the output directory and the result writer (nothing is left if that fails)."""
+    created = create_output_dir(comm, out_dir, out)
+    metadata = {"params": sim.scene.params, "version": __version__, "mpi_ranks": comm.size}
+    try:
+        with phase(sim.timings, "output"):
+            return _writer(comm, sim, out_dir, metadata)
+    except BaseException:
+        if comm.rank == 0:
+            remove_empty_dirs(created)
+        raise
 
 
 def _summary(comm, scene, disc, sim, start, errors=None, status="ok") -> dict:
@@ -354,6 +296,7 @@ def _summary(comm, scene, disc, sim, start, errors=None, status="ok") -> dict:
         "linear_iterations": sim.linear_iterations,
         "factorizations": sim.solver.factorizations,
         "max_newton_per_step": sim.max_newton_per_step,
+        **sim.coulomb_summary(),  # outer iterations of the Coulomb fixed point, if any
         # peak resident memory of the largest rank (ru_maxrss is in KiB on Linux)
         "peak_rss_mb": comm.allreduce(
             resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, op=MPI.MAX
@@ -385,6 +328,11 @@ def print_summary(summary: dict, out_dir: Path, file=sys.stdout) -> None:
         f"{summary['linear_iterations']} linear iterations, "
         f"{summary['factorizations']} factorization(s)"
     ]
+    if "coulomb_iterations" in summary:
+        lines.append(
+            f"Coulomb fixed point: {summary['coulomb_iterations']} outer iterations "
+            f"(at most {summary['max_coulomb_per_step']} per step)"
+        )
     if "errors" in summary:
         e = summary["errors"]
         lines.append(f"errors at T: L2 {e['l2_rel']:.3e}   H1 {e['h1_rel']:.3e}  (relative)")

@@ -142,8 +142,11 @@ def _polygon_extent(vertices) -> tuple[float, float]:
 
 
 def _padding(scene) -> float:
-    """n_max / mean neighbours: structured grids for "square" and "rectangle"."""
-    return PADDING["grid" if scene.domain["shape"] in ("square", "rectangle") else "unstructured"]
+    """n_max / mean neighbours: structured grids for the box shapes (Shape.box)."""
+    from parefg.geometry.shapes import SHAPES
+
+    structured = SHAPES[scene.domain["shape"]].box is not None
+    return PADDING["grid" if structured else "unstructured"]
 
 
 def _size(scene, n_nodes, n_cells, n_segments, kappa: float, alpha: float) -> Size:
@@ -202,18 +205,14 @@ def estimate_scene(scene) -> Size | None:
     A .geo domain's area is known only once gmsh has read the file
     (:meth:`Budget.check_extent`).  Not collective; pure arithmetic on the scene.
     """
-    domain = scene.domain
-    shape = domain["shape"]
-    if shape == "square":
-        return grid_size(scene, 1.0, 1.0)
-    if shape == "rectangle":
-        lx, ly = domain["size"]
-        return grid_size(scene, float(lx), float(ly))
-    if shape in ("z", "polygon"):
-        from parefg.geometry.domains import Z_VERTICES
+    from parefg.geometry.shapes import SHAPES
 
-        vertices = Z_VERTICES if shape == "z" else domain["vertices"]
-        return unstructured_size(scene, *_polygon_extent(vertices))
+    shape = SHAPES[scene.domain["shape"]]
+    if shape.box is not None:  # a structured grid
+        _, (lx, ly) = shape.box(scene.domain)
+        return grid_size(scene, float(lx), float(ly))
+    if shape.outline is not None:
+        return unstructured_size(scene, *_polygon_extent(shape.outline(scene.domain)[0]))
     return None
 
 
@@ -225,7 +224,7 @@ def cloud_size(scene, cloud) -> Size:
     """
     import numpy as np
 
-    from parefg.geometry.domains import signed_areas
+    from parefg.geometry.cloud import signed_areas
 
     dual_area = np.zeros(cloud.n_nodes)  # (n_nodes,) each cell's area shared by its corners
     alphas = [np.empty(0)]

@@ -24,14 +24,16 @@ tree search, padded neighbour lists, batched dense linear algebra) and serves
 as the reference and as the fallback when numba or a compiled weight is missing.
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from parefg.discretization import mls_kernels
-from parefg.discretization.weights import get_weight
+from parefg.discretization.weights import DEFAULT_WEIGHT, get_weight
 from parefg.errors import InputError
+from parefg.geometry.cloud import DIM
 
 # Dilations beyond this are advised down, not up, when A(x) is singular with enough neighbours.
 LARGE_SUPPORT = 20.0
@@ -78,40 +80,53 @@ class ShapeValues:
     condition: np.ndarray
 
 
-def n_basis(degree: int) -> int:
-    """Number of complete Pascal monomials of total degree <= m in 2D: (m + 1)(m + 2) / 2."""
-    return (degree + 1) * (degree + 2) // 2
+def n_basis(degree: int, dim: int = 2) -> int:
+    """Number of Pascal monomials of total degree <= m in d dimensions: C(m + d, d)."""
+    return math.comb(degree + dim, dim)
 
 
-def basis_exponents(degree: int) -> np.ndarray:
-    """Exponents (a, b) of the monomials xi^a eta^b, ordered by total degree.
+def _compositions(total: int, dim: int):
+    """Exponent tuples of ``dim`` entries summing to ``total``, the first entry descending."""
+    if dim == 1:
+        yield (total,)
+        return
+    for first in range(total, -1, -1):
+        for rest in _compositions(total - first, dim - 1):
+            yield (first, *rest)
+
+
+def basis_exponents(degree: int, dim: int = 2) -> np.ndarray:
+    """Exponents of the monomials of total degree <= m, ordered by total degree.
+
+    Within one total degree the first exponent descends: in 2D the rows are (a, b) of
+    xi^a eta^b, row 0 is (0, 0), rows 1 and 2 are (1, 0) and (0, 1), then degree 2, ...
 
     Returns
     -------
-    ndarray of int, shape (n_basis, 2)
-        Row 0 is (0, 0), rows 1 and 2 are (1, 0) and (0, 1), then degree 2, ...
+    ndarray of int, shape (n_basis, dim)
     """
-    return np.array(
-        [(total - b, b) for total in range(degree + 1) for b in range(total + 1)], dtype=int
-    )
+    rows = [row for total in range(degree + 1) for row in _compositions(total, dim)]
+    return np.array(rows, dtype=int).reshape(-1, dim)
 
 
 def pascal_basis(xi: np.ndarray, degree: int) -> np.ndarray:
-    """Complete Pascal basis p(xi) = [xi^a eta^b], a + b <= m, for points xi of shape (..., 2).
+    """Complete Pascal basis p(xi) = [prod_k xi_k^(a_k)], sum a_k <= m, for xi of shape (..., d).
 
     Returns
     -------
-    ndarray, shape (..., n_basis(degree))
+    ndarray, shape (..., n_basis(degree, d))
     """
-    exponents = basis_exponents(degree)
-    # Powers xi^0..xi^m and eta^0..eta^m by repeated products (cheaper than **), (..., m + 1).
-    powers_x = np.empty((*xi.shape[:-1], degree + 1))
-    powers_y = np.empty_like(powers_x)
-    powers_x[..., 0] = powers_y[..., 0] = 1.0
+    dim = xi.shape[-1]
+    exponents = basis_exponents(degree, dim)
+    # Powers xi_k^0..xi_k^m by repeated products (cheaper than **), (d, ..., m + 1).
+    powers = np.empty((dim, *xi.shape[:-1], degree + 1))
+    powers[..., 0] = 1.0
     for power in range(1, degree + 1):
-        powers_x[..., power] = powers_x[..., power - 1] * xi[..., 0]
-        powers_y[..., power] = powers_y[..., power - 1] * xi[..., 1]
-    return powers_x[..., exponents[:, 0]] * powers_y[..., exponents[:, 1]]
+        powers[..., power] = powers[..., power - 1] * np.moveaxis(xi, -1, 0)
+    basis = powers[0][..., exponents[:, 0]]
+    for axis in range(1, dim):
+        basis = basis * powers[axis][..., exponents[:, axis]]
+    return basis
 
 
 class MLS:
@@ -139,13 +154,13 @@ class MLS:
         nodes,
         support_radius,
         degree: int,
-        weight: str = "cubic",
+        weight: str = DEFAULT_WEIGHT,
         support_factor: float | None = None,
         backend: str | None = None,
     ):
         if degree not in (1, 2, 3):
             raise InputError(f"discretization.degree: must be 1, 2 or 3, got {degree!r}")
-        self.nodes = np.ascontiguousarray(nodes, dtype=float).reshape(-1, 2)  # (n_nodes, 2)
+        self.nodes = np.ascontiguousarray(nodes, dtype=float).reshape(-1, DIM)  # (n_nodes, d)
         self.support_radius = np.broadcast_to(
             np.asarray(support_radius, dtype=float), (len(self.nodes),)
         ).copy()  # (n_nodes,)
@@ -165,7 +180,7 @@ class MLS:
 
     def _choose_backend(self, backend):
         """The backend to use: the requested one, or the first usable one of BACKENDS."""
-        compiled = mls_kernels.AVAILABLE and self.weight.name in mls_kernels.WEIGHT_CODES
+        compiled = mls_kernels.AVAILABLE and self.weight.code is not None
         if backend is None:
             return "numba" if compiled else "numpy"
         if backend not in BACKENDS:
@@ -186,12 +201,12 @@ class MLS:
             At the first point whose moment matrix has fewer neighbours than basis
             terms or a condition number above ``MAX_CONDITION``.
         """
-        points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)  # (n_points, 2)
+        points = np.ascontiguousarray(points, dtype=float).reshape(-1, DIM)  # (n_points, d)
         neighbours, mask = self.find_neighbours(points) if neighbours is None else neighbours
         if self.backend == "numba":
             return self._evaluate_compiled(points, neighbours, mask, gradients)
         phi = np.zeros(neighbours.shape)  # (n_points, n_max)
-        dphi = np.zeros((*neighbours.shape, 2)) if gradients else None  # (n_points, n_max, 2)
+        dphi = np.zeros((*neighbours.shape, DIM)) if gradients else None  # (n_points, n_max, d)
         condition = np.zeros(len(points))  # (n_points,)
         for start in range(0, len(points), CHUNK_POINTS):
             chunk = slice(start, start + CHUNK_POINTS)
@@ -343,7 +358,7 @@ class MLS:
             points,
             self.nodes,
             self.support_radius,
-            mls_kernels.WEIGHT_CODES[self.weight.name],
+            self.weight.code,
             mls_kernels.basis_size(self.degree),
             neighbours,
             mask,
@@ -375,8 +390,8 @@ class MLS:
         phi = w * basis_gamma
         if not gradients:
             return phi, None, condition
-        dphi = np.empty((*phi.shape, 2))  # (n, n_max, 2)
-        for k in range(2):
+        dphi = np.empty((*phi.shape, DIM))  # (n, n_max, d)
+        for k in range(DIM):
             moment_k = (basis_t * dw[:, None, :, k]) @ basis  # (n, n_basis, n_basis) A_k
             # A gamma_k = dp/dxi_k(0) / R - A_k gamma; dp/dxi_k(0) = e_{1+k}.
             rhs = -np.einsum("nij,nj->ni", moment_k, gamma)

@@ -20,7 +20,7 @@ after an edit pays the compilation.
 
 import numpy as np
 
-from parefg.discretization.weights import GAUSSIAN_WIDTH
+from parefg.discretization.weights import WEIGHTS, weight_pair
 
 try:
     import numba
@@ -28,9 +28,8 @@ except ImportError:  # pragma: no cover - numba is a Debian package of the envir
     numba = None
 
 AVAILABLE = numba is not None
-# Weights the compiled kernel knows, by registry name (see parefg.discretization.weights);
-# others use numpy.
-WEIGHT_CODES = {"cubic": 0, "quartic": 1, "gaussian": 2}
+# Weights the compiled kernel knows (registry name -> Weight.code); others use numpy.
+WEIGHT_CODES = {name: weight.code for name, weight in WEIGHTS.items() if weight.code is not None}
 
 
 def _jit(function):
@@ -40,20 +39,8 @@ def _jit(function):
     return numba.njit(cache=True, fastmath=False, nogil=True)(function)
 
 
-@_jit
-def weight_and_slope(code, r):
-    """(W(r), dW/dr) of the weight with the given code; both 0 for r >= 1."""
-    if r >= 1.0:
-        return 0.0, 0.0
-    if code == 0:  # cubic spline
-        if r <= 0.5:
-            return 2.0 / 3.0 - 4.0 * r * r + 4.0 * r**3, -8.0 * r + 12.0 * r * r
-        return 4.0 / 3.0 - 4.0 * r + 4.0 * r * r - 4.0 / 3.0 * r**3, -4.0 + 8.0 * r - 4.0 * r * r
-    if code == 1:  # quartic spline
-        return 1.0 - 6.0 * r * r + 8.0 * r**3 - 3.0 * r**4, -12.0 * r + 24.0 * r * r - 12.0 * r**3
-    floor = np.exp(-((1.0 / GAUSSIAN_WIDTH) ** 2))
-    gauss = np.exp(-((r / GAUSSIAN_WIDTH) ** 2))
-    return (gauss - floor) / (1.0 - floor), -2.0 * r / GAUSSIAN_WIDTH**2 * gauss / (1.0 - floor)
+# (W(r), dW/dr) of the weight with the given code (Weight.code); both 0 for r >= 1.
+weight_and_slope = _jit(weight_pair)
 
 
 # ----------------------------------------------------------------------------- neighbour search

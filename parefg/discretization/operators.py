@@ -16,6 +16,7 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.boundary import BoundaryKind
 from parefg.discretization.assembly import (
     Coupling,
     gradient_operator,
@@ -26,7 +27,8 @@ from parefg.discretization.assembly import (
 from parefg.discretization.budget import Budget, check_problem_size
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.quadrature import Quadrature, cell_quadrature, segment_quadrature
-from parefg.geometry.domains import NodeCloud, build_node_cloud
+from parefg.geometry.cloud import NodeCloud
+from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.geometry.partition import Partition, partition_cloud
 from parefg.profiling import phase
 
@@ -288,14 +290,14 @@ class _Builder:
         dirichlet_local = sp.csr_matrix((2 * n, 2 * n))
         for name, bc in scene.boundaries.items():
             part_id = cloud.part_names.index(name)
-            if bc.kind == "contact":
+            if bc.kind == BoundaryKind.CONTACT:
                 contact_parts.append(part_id)
                 continue
             quadrature, _ = self._boundary_quadrature([part_id])
             shape = self._shape(quadrature.points, gradients=False)
             with phase(self.timings, "assembly"):
                 boundary[name] = self._point_set(quadrature, shape)
-                if bc.kind == "dirichlet":
+                if bc.kind == BoundaryKind.DIRICHLET:
                     coupling = Coupling.of(shape, n, quadrature.cell)
                     phi = shape.phi[:, :, None]
                     gram = coupling.gram(phi, phi, quadrature.weights)

@@ -1,8 +1,16 @@
 """MLS weight functions W(r) of the normalized distance r = |x - x_I| / d_I (SPEC 2).
 
 Every weight is registered by name in :data:`WEIGHTS`; the scene key
-``discretization.weight`` selects one through :func:`get_weight`.  All weights
-have compact support: W(r) = 0 and W'(r) = 0 for r >= 1.
+``discretization.weight`` selects one through :func:`get_weight` and the scene schema
+reads its allowed values from there.  All weights have compact support: W(r) = 0 and
+W'(r) = 0 for r >= 1.
+
+Each weight is written in two forms, both here: vectorized numpy functions (the numpy
+backend of :mod:`parefg.discretization.mls`) and one branch of :func:`weight_pair`, the
+scalar form that :mod:`parefg.discretization.mls_kernels` compiles.  They are not one
+formula evaluated twice because their operation orders differ (4 r^2 against 4 r r), and
+each backend's results must keep their last bits; tests/discretization/test_mls.py checks
+that the two forms agree to round-off.
 """
 
 from collections.abc import Callable
@@ -28,11 +36,38 @@ class Weight:
         r -> W(r), same shape as r, zero for r >= 1.
     derivative : callable
         r -> dW/dr, same shape as r, zero for r >= 1.
+    code : int or None
+        Its branch of :func:`weight_pair` (the compiled kernel), or None when the
+        compiled kernel does not know it (then MLS computes with numpy).
     """
 
     name: str
     value: Callable[[np.ndarray], np.ndarray]
     derivative: Callable[[np.ndarray], np.ndarray]
+    code: int | None = None
+
+
+# Branches of weight_pair, one per compiled weight.
+CUBIC, QUARTIC, GAUSSIAN = 0, 1, 2
+
+
+def weight_pair(code, r):
+    """(W(r), dW/dr) of the weight with the given code at one r >= 0; both 0 for r >= 1.
+
+    Plain Python that numba compiles (:func:`parefg.discretization.mls_kernels.weight_and_slope`):
+    keep it to scalar arithmetic.
+    """
+    if r >= 1.0:
+        return 0.0, 0.0
+    if code == CUBIC:
+        if r <= 0.5:
+            return 2.0 / 3.0 - 4.0 * r * r + 4.0 * r**3, -8.0 * r + 12.0 * r * r
+        return 4.0 / 3.0 - 4.0 * r + 4.0 * r * r - 4.0 / 3.0 * r**3, -4.0 + 8.0 * r - 4.0 * r * r
+    if code == QUARTIC:
+        return 1.0 - 6.0 * r * r + 8.0 * r**3 - 3.0 * r**4, -12.0 * r + 24.0 * r * r - 12.0 * r**3
+    floor = np.exp(-((1.0 / GAUSSIAN_WIDTH) ** 2))
+    gauss = np.exp(-((r / GAUSSIAN_WIDTH) ** 2))
+    return (gauss - floor) / (1.0 - floor), -2.0 * r / GAUSSIAN_WIDTH**2 * gauss / (1.0 - floor)
 
 
 def _cubic_value(r):
@@ -79,12 +114,13 @@ def _gaussian_derivative(r):
     return np.where(r < 1.0, slope, 0.0)
 
 
+#: ``discretization.weight`` -> its Weight; the first one is the default
 WEIGHTS: dict[str, Weight] = {
     weight.name: weight
     for weight in (
-        Weight("cubic", _cubic_value, _cubic_derivative),
-        Weight("quartic", _quartic_value, _quartic_derivative),
-        Weight("gaussian", _gaussian_value, _gaussian_derivative),
+        Weight("cubic", _cubic_value, _cubic_derivative, CUBIC),
+        Weight("quartic", _quartic_value, _quartic_derivative, QUARTIC),
+        Weight("gaussian", _gaussian_value, _gaussian_derivative, GAUSSIAN),
     )
 }
 
@@ -104,3 +140,6 @@ def get_weight(name: str) -> Weight:
         raise InputError(
             f"discretization.weight: unknown weight {name!r}; allowed: {known}"
         ) from None
+
+
+DEFAULT_WEIGHT = next(iter(WEIGHTS))

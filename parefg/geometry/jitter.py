@@ -1,7 +1,7 @@
 """Jittered node clouds: seeded, fold-free perturbation of interior nodes.
 
 ``[discretization] jitter`` and ``seed`` of a scene move every interior node of
-the gmsh cloud (:func:`parefg.geometry.domains.build_node_cloud`) by a random offset of
+the gmsh cloud (:func:`parefg.geometry.gmsh_mesh.build_node_cloud`) by a random offset of
 at most ``jitter`` times its local spacing, redrawing the nodes of any folded
 cell, so that EFG can be tried on irregular clouds.
 """
@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from parefg.errors import InputError
-from parefg.geometry.domains import NodeCloud, node_spacing
+from parefg.geometry.cloud import NodeCloud, node_spacing
 
 MAX_JITTER = 0.45  # fraction of the local spacing c_I
 JITTER_ROUNDS = 20  # redraws of the nodes of folded cells; the last one restores them
@@ -47,7 +47,7 @@ def jitter_cloud(cloud: NodeCloud, jitter: float, seed: int = 0) -> NodeCloud:
     movable = np.ones(cloud.n_nodes, dtype=bool)
     movable[np.unique(cloud.segments)] = False
     step = jitter * cloud.spacing[:, None] * movable[:, None]  # (n_nodes, 1): 0 on the boundary
-    coords = cloud.coords + step * rng.uniform(-1.0, 1.0, size=cloud.coords.shape)  # (N, 2)
+    coords = cloud.coords + step * rng.uniform(-1.0, 1.0, size=cloud.coords.shape)  # (N, d)
     for attempt in range(1, JITTER_ROUNDS + 1):
         folded = _folded_cells(coords, cloud.quads, cloud.triangles)
         if not len(folded):
@@ -55,7 +55,7 @@ def jitter_cloud(cloud: NodeCloud, jitter: float, seed: int = 0) -> NodeCloud:
         # Redraw only the nodes of folded cells, with shrinking offsets (0 in the last round).
         redraw = np.unique(np.concatenate(folded))
         scale = 1.0 - attempt / JITTER_ROUNDS
-        offsets = rng.uniform(-1.0, 1.0, size=(len(redraw), 2))  # (n_redraw, 2)
+        offsets = rng.uniform(-1.0, 1.0, size=(len(redraw), cloud.dim))  # (n_redraw, d)
         coords[redraw] = cloud.coords[redraw] + scale * step[redraw] * offsets
     folded = _folded_cells(coords, cloud.quads, cloud.triangles)
     if len(folded):

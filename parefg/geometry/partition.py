@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from parefg.errors import InputError
-from parefg.geometry.domains import NodeCloud, mesh_edges
+from parefg.geometry.cloud import NodeCloud, mesh_edges
 
 
 @dataclass
@@ -135,11 +135,12 @@ def _bisect(coords, members, first_part: int, n_parts: int, node_part) -> _Cut |
     if n_parts == 1:
         node_part[members] = first_part
         return first_part
-    points = coords[members]  # (n_members, 2)
-    axis = int(np.argmax(np.ptp(points, axis=0)))  # the longer extent
-    # Sort along the axis; ties (grid lines) broken by the other coordinate, then index,
+    points = coords[members]  # (n_members, d)
+    axis = int(np.argmax(np.ptp(points, axis=0)))  # the longest extent
+    # Sort along the axis; ties (grid lines) broken by the other coordinates, then index,
     # so a split grid line stays compact and the order is deterministic.
-    order = np.lexsort((members, points[:, 1 - axis], points[:, axis]))
+    others = [points[:, other] for other in range(points.shape[1]) if other != axis]
+    order = np.lexsort((members, *others[::-1], points[:, axis]))
     n_below_parts = n_parts // 2
     n_members = len(members)
     n_below = n_below_parts * (n_members // n_parts) + min(n_below_parts, n_members % n_parts)
@@ -168,5 +169,5 @@ def _classify(cuts: _Cut | int, points: np.ndarray) -> np.ndarray:
 
 
 def _centroids(coords: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """(n_cells, 2) vertex averages of cells (or segments)."""
-    return coords[cells].mean(axis=1) if len(cells) else np.empty((0, 2))
+    """(n_cells, d) vertex averages of cells (or segments)."""
+    return coords[cells].mean(axis=1) if len(cells) else np.empty((0, coords.shape[1]))

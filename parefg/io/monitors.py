@@ -43,6 +43,10 @@ class Progress:
         self.start = self.last = time.perf_counter()
         self.every = max(1, n_steps // PROGRESS_MARKS)
 
+    def after_step(self, sim, step) -> None:
+        """As an observer of the time loop (not collective)."""
+        self.update(step.n, step.row["time"], step.row["newton_iterations"])
+
     def update(self, n: int, t: float, newton: int) -> None:
         """After step ``n`` (time ``t``, ``newton`` iterations): print if a line is due."""
         if not self.show:

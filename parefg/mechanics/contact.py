@@ -19,6 +19,8 @@ The friction law gates the bound once per step, before the solve (:meth:`Contact
 So the per-step energy stays convex, and every method below (energy, residual, Jacobian,
 piece, directional derivative, return mapping, dissipation) sees the same gated bound: the
 exact line search minimizes the energy whose gradient is the residual.
+"coulomb" (g = mu_f p) sets its bound from a given iterate (:meth:`ContactLaw.set_pressure_bound`)
+and keeps it fixed through one such convex solve; the fixed point around it is the step's.
 """
 
 from __future__ import annotations
@@ -28,9 +30,10 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.boundary import BoundaryKind
 from parefg.discretization.assembly import owned_rows, petsc_matrix
 from parefg.guards import DataGuard
-from parefg.mechanics.friction import FRICTION_LAWS
+from parefg.mechanics.friction import FRICTION_LAWS, PRESSURE_LAWS, coulomb_bound
 
 OPEN, STICK, SLIP = 0, 1, 2
 
@@ -55,10 +58,15 @@ class ContactLaw:
         self.alpha_c, self.alpha_t = scene.alpha_contact, scene.alpha_friction
         self.dof_ranges = 2 * disc.partition.node_ranges
         bcs = [scene.boundaries[name] for name in disc.cloud.part_names if name in scene.boundaries]
-        self._bcs = {disc.cloud.part_names.index(bc.name): bc for bc in bcs if bc.kind == "contact"}
+        self._bcs = {
+            disc.cloud.part_names.index(bc.name): bc
+            for bc in bcs
+            if bc.kind == BoundaryKind.CONTACT
+        }
         self.part = points.part
         self.has_friction = not all(bc.friction_is_zero for bc in self._bcs.values())
         self.gap = self._per_part("gap", lambda bc, x, y, n: bc.gap(x, y), 0.0)
+        self._init_coulomb()
         self.bound_data = np.zeros(len(self.weights))  # g_n(x_q) at the points, set by set_time
         self.acting = np.ones(len(self.weights), dtype=bool)  # where the law lets g act (gate)
         self.bound = np.zeros(len(self.weights))  # g_n where acting, else 0: used by the step
@@ -89,6 +97,32 @@ class ContactLaw:
         )
         # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
         self._point_vec = self.operator.createVecLeft()
+
+    def _init_coulomb(self) -> None:
+        """mu_f at the points of Coulomb parts (0 elsewhere); has_coulomb on every rank."""
+        self.coefficient = np.zeros(len(self.weights))  # (n_c,) mu_f
+        self.coulomb = np.zeros(len(self.weights), dtype=bool)  # (n_c,) on a Coulomb part
+        for part_id, bc in self._bcs.items():
+            if bc.friction_law in PRESSURE_LAWS:
+                on = self.part == part_id
+                self.coefficient[on] = bc.friction_coefficient
+                self.coulomb[on] = True
+        # from the scene, the same on every rank: decides the collective outer loop
+        self.has_coulomb = any(
+            bc.friction_law in PRESSURE_LAWS and not bc.friction_is_zero
+            for bc in self._bcs.values()
+        )
+
+    def set_pressure_bound(self, un) -> None:
+        """The bound hook of Coulomb parts: g = mu_f p(u_nu) at their points.
+
+        ``un`` is u_nu of the iterate the bound is taken from; the other points keep the
+        bound of :meth:`gate` and :meth:`set_time`, which reset the Coulomb points to 0
+        (so call this after them, before the solve).  Not collective.
+        """
+        if self.has_coulomb:
+            pressure_bound = coulomb_bound(self.coefficient, self.pressure(un))
+            self.bound = np.where(self.coulomb, pressure_bound, self.bound)
 
     def _per_part(self, key: str, evaluate, t: float, nonnegative=False) -> np.ndarray:
         """Evaluate a datum (boundary.NAME.key) of each contact part at its points.

@@ -4,6 +4,12 @@ A law is chosen per contact part (``[boundary.NAME] friction_law``).  It maps th
 state at the start of the step to the points where the bound acts; the step then
 minimizes J_n with the bound g_eff = g_n on those points and 0 elsewhere.
 
+Coulomb (``"coulomb"``, g = mu_f p with the contact pressure p = alpha_C (u_nu - s)^+ of
+the unknown u_n) is the pressure-dependent law of :data:`PRESSURE_LAWS`: its bound is not
+data but part of the solution, so it is not gated (it vanishes by itself where the body
+does not touch, with no lag at a status change) and the step solves it by a fixed point
+on Tresca bounds, g^(k) = mu_f p(u^(k)) (parefg.timestepping.coulomb).
+
 Why the start of the step: gating by the status of the unknown u_n itself
 (psi(z) H(u_nu - s)) makes J_n non-convex and its directional derivative jump where a
 point closes, so the exact line search and the convergence test would lose their meaning.
@@ -53,9 +59,19 @@ def _everywhere(un_predicted, gap) -> np.ndarray:
 
 
 #: name -> gate(u_nu of the predictor, s) -> (n,) bool: the points where g acts in the step.
-#: "coulomb" (g = mu_f (-sigma_nu), SPEC 1) belongs here once implemented; its bound depends
-#: on the pressure, so it will also need a bound hook, not only a gate.
+#: A pressure-dependent law (PRESSURE_LAWS) acts everywhere: its bound mu_f p is zero where
+#: the iterate does not touch.
 FRICTION_LAWS: dict[str, Callable[..., np.ndarray]] = {
     "tresca": _touching,
     "given": _everywhere,
+    "coulomb": _everywhere,
 }
+
+#: the laws whose bound is mu_f times the contact pressure ([boundary.NAME]
+#: friction_coefficient), set by ContactLaw.set_pressure_bound instead of a given g
+PRESSURE_LAWS = ("coulomb",)
+
+
+def coulomb_bound(coefficient, pressure) -> np.ndarray:
+    """Coulomb's bound g = mu_f p (SPEC 1: mu_f (-sigma_nu), -sigma_nu = p >= 0)."""
+    return coefficient * pressure

@@ -1,4 +1,7 @@
-"""Scenes: the TOML schema (:mod:`.schema`), loading and derived data (:mod:`.loader`),
+"""Scenes: reading a TOML table key by key (:mod:`.table`), the schema of every section
+(:mod:`.schema`, reading the registries of the layers below), loading and the
+:class:`~.loader.Scene` (:mod:`.loader`), scene data as vectorized fields and boundary
+conditions (:mod:`.fields`), data derived from ``[exact]`` (:mod:`.manufactured`),
 expressions and their symbolic checks (:mod:`.expressions`, :mod:`.symbolic`,
 :mod:`.checks`), and the built-in scenes (``builtin/*.toml``).
 """

@@ -9,9 +9,10 @@ import numpy as np
 import sympy
 
 from parefg.errors import InputError
+from parefg.geometry.shapes import part_segments
 from parefg.scene.expressions import SYMBOLS
-from parefg.scene.schema import _show, part_segments
 from parefg.scene.symbolic import first_negative
+from parefg.scene.table import show
 
 SIGN_SAMPLES = 16  # points per contact part at which gap and friction are checked at load
 SIGN_TIMES = 5  # times in [0, T] at which the friction bound is checked
@@ -62,7 +63,7 @@ class SignChecks:
             point, value = found
             at = ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, point, strict=True))
             raise InputError(
-                f"{self.where}: boundary.{part}.{key} = {_show(given)}: must be >= 0 "
+                f"{self.where}: boundary.{part}.{key} = {show(given)}: must be >= 0 "
                 f"({self.MEANING[key]}), is {value:.6g} at {at}"
             )
 

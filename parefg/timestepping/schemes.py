@@ -7,7 +7,8 @@ owns (the time loop allocates its work vectors once per run).  Each step minimiz
            + alpha_D/2 ||u - ubar_n||^2_{Gamma_D} + contact and friction energy,
 
 i.e. solves A_const u - b_n + contact forces = 0 with A_const = c_M M + K + alpha_D G_D
-(assembled once) and b_n = c_M M ut_n + F_n + alpha_D g_D(t_n).  Newmark has
+(assembled once) and b_n = c_M M ut_n + F_n + alpha_D g_D(t_n) (+ the previous level's
+balance for generalized-alpha, see :attr:`GeneralizedAlphaScheme.history`).  Newmark has
 c_M = 1 / (beta k^2); the static scheme has c_M = 0 and steps the loads only.
 """
 
@@ -38,12 +39,20 @@ class NewmarkScheme:
 
     name = "newmark"
     dynamic = True
+    # (w_a, w_r): b_n -= w_a M a_{n-1} + w_r r_{n-1}, the previous level's share of the
+    # step; None: the balance is at t_n alone (Newmark)
+    history: tuple[float, float] | None = None
 
     def __init__(self, scene):
         self.k, self.beta, self.gamma = scene.dt, scene.beta, scene.gamma
 
     @property
     def mass_coefficient(self) -> float:
+        return 1.0 / (self.beta * self.k**2)
+
+    @property
+    def acceleration_coefficient(self) -> float:
+        """1 / (beta k^2): a_n = (u_n - ut_n) / (beta k^2)."""
         return 1.0 / (self.beta * self.k**2)
 
     def predict(self, state: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
@@ -60,9 +69,60 @@ class NewmarkScheme:
         a, v = new.a, new.v
         new.u.copy(a)
         a.axpy(-1.0, ut)
-        a.scale(self.mass_coefficient)
+        a.scale(self.acceleration_coefficient)
         vt.copy(v)
         v.axpy(self.gamma * self.k, a)
+
+
+def generalized_alpha_parameters(rho_inf: float) -> dict[str, float]:
+    """alpha_m, alpha_f, beta, gamma of generalized-alpha for the spectral radius rho_inf.
+
+    Chung & Hulbert (1993), eq. (25) and (17), (20): alpha_m = (2 rho - 1)/(rho + 1),
+    alpha_f = rho/(rho + 1), gamma = 1/2 - alpha_m + alpha_f (second order),
+    beta = (1 - alpha_m + alpha_f)^2 / 4 (unconditional stability, high-frequency
+    dissipation maximal for the given rho_inf in [0, 1]).  rho_inf = 1 gives
+    alpha_m = alpha_f = 1/2, beta = 1/4, gamma = 1/2: no dissipation.
+    """
+    alpha_m = (2.0 * rho_inf - 1.0) / (rho_inf + 1.0)
+    alpha_f = rho_inf / (rho_inf + 1.0)
+    return {
+        "alpha_m": alpha_m,
+        "alpha_f": alpha_f,
+        "gamma": 0.5 - alpha_m + alpha_f,
+        "beta": 0.25 * (1.0 - alpha_m + alpha_f) ** 2,
+    }
+
+
+class GeneralizedAlphaScheme(NewmarkScheme):
+    """Generalized-alpha (Chung & Hulbert 1993) with the Newmark predictor and update.
+
+    The balance is taken between the levels, each force as the alpha_f-weighted mean of its
+    values at the two levels (the "generalized trapezoidal" form, Erlicher, Bonaventura &
+    Bursi 2002, second order like the midpoint form f(u_{n-alpha_f})):
+
+        (1 - alpha_m) M a_n + alpha_m M a_{n-1} + (1 - alpha_f) r_n + alpha_f r_{n-1} = 0,
+        r(u, t) = (K + alpha_D G_D) u - F(t) - alpha_D g_D(t) + C(u)    (C: contact, friction)
+
+    Divided by (1 - alpha_f), the step is Newmark's convex minimization with the stiffness
+    coefficient 1 and c_M = (1 - alpha_m) / ((1 - alpha_f) beta k^2): the contact energy
+    and its penalty enter unchanged, at u_n (the law, the Jacobian and the exact line search
+    are Newmark's).  The previous level enters b_n through :attr:`history`.  rho_inf = 1
+    is Newmark(1/4, 1/2): its balance at t_{n-1} makes the history term vanish.
+    """
+
+    name = "generalized-alpha"
+
+    def __init__(self, scene):
+        self.k, self.rho_inf = scene.dt, scene.rho_inf
+        parameters = generalized_alpha_parameters(self.rho_inf)
+        self.alpha_m, self.alpha_f = parameters["alpha_m"], parameters["alpha_f"]
+        self.beta, self.gamma = parameters["beta"], parameters["gamma"]
+        scale = 1.0 / (1.0 - self.alpha_f)
+        self.history = (self.alpha_m * scale, self.alpha_f * scale)
+
+    @property
+    def mass_coefficient(self) -> float:
+        return (1.0 - self.alpha_m) / ((1.0 - self.alpha_f) * self.beta * self.k**2)
 
 
 class StaticScheme:
@@ -71,6 +131,7 @@ class StaticScheme:
     name = "static"
     dynamic = False
     mass_coefficient = 0.0
+    history: tuple[float, float] | None = None
 
     def __init__(self, scene):
         self.k = scene.dt
@@ -86,7 +147,7 @@ class StaticScheme:
         state.a.copy(new.a)
 
 
-SCHEMES = {scheme.name: scheme for scheme in (NewmarkScheme, StaticScheme)}
+SCHEMES = {scheme.name: scheme for scheme in (NewmarkScheme, GeneralizedAlphaScheme, StaticScheme)}
 
 
 def make_scheme(scene):

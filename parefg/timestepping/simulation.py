@@ -14,11 +14,13 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.boundary import BoundaryKind
 from parefg.discretization.assembly import petsc_matrix, with_pattern
 from parefg.errors import SolverError
 from parefg.guards import DataGuard, RigidModes, all_finite, require_constraints
 from parefg.mechanics.contact import ContactLaw
 from parefg.profiling import phase
+from parefg.timestepping.coulomb import CoulombStepSolver
 from parefg.timestepping.schemes import State, make_scheme, relative_errors
 from parefg.timestepping.step_solver import (
     ContactStepSolver,
@@ -56,27 +58,32 @@ class Simulation:
         if disc.contact is not None:
             self.law = ContactLaw(comm, disc, scene, self.guard)
             self.guard.check()  # the gap
-        self.dirichlet_names = [n for n, bc in scene.boundaries.items() if bc.kind == "dirichlet"]
-        self.neumann_names = [n for n, bc in scene.boundaries.items() if bc.kind == "neumann"]
+        self.dirichlet_names = [
+            n for n, bc in scene.boundaries.items() if bc.kind == BoundaryKind.DIRICHLET
+        ]
+        self.neumann_names = [
+            n for n, bc in scene.boundaries.items() if bc.kind == BoundaryKind.NEUMANN
+        ]
         self.timings: dict[str, float] = {"assembly": 0.0, "solve": 0.0, "output": 0.0}
         with phase(self.timings, "assembly"):
             self.a_const = self._a_const()
             if self.law is None:
                 self.solver = LinearStepSolver(comm, self.a_const)
             else:
-                self.solver = ContactStepSolver(comm, self.a_const, self.law)
+                self.solver = _contact_solver(comm, self.a_const, self.law)
             self.rigid_modes = self._rigid_mode_check()
         self.history: list[dict[str, float]] = []
         self._energy_budget = [0.0, 0.0]  # initial stored energy, largest |external work|
         self.newton_iterations = 0
         self.linear_iterations = 0
         self.max_newton_per_step = 0
+        self.coulomb_iterations = self.max_coulomb_per_step = 0  # outer (bound) iterations
         create = disc.create_vec
         # predictors, right-hand side, a scratch vector, one part of a load, a matrix product
         self._ut, self._vt, self._b, self._work, self._part, self._product = (
             create() for _ in range(6)
         )
-        self._du, self._mean_forces = create(), create()
+        self._du, self._mean_forces, self._history = create(), create(), create()
         self._last_forces, self._next_forces = create(), create()  # F_{n-1} and F_n
         self._spare: State | None = None  # buffers of the next level (the level before last)
 
@@ -197,11 +204,15 @@ class Simulation:
     def initial_state(self, forces: PETSc.Vec) -> State:
         """u_0, v_0 projected; a_0 from M a_0 = F_0 - (K + alpha_D G_D) u_0 - contact(u_0).
 
-        ``forces`` is F_0 = external_forces(0).
+        ``forces`` is F_0 = external_forces(0).  A dynamic scene with a Dirichlet part
+        takes u_0 by the elliptic projection of u0 (:meth:`_elliptic_projection`), so that
+        a_0 is the L2 projection of the true acceleration; otherwise (or u0 = 0) by L2.
         """
         u = self._project("u", self.scene.initial_u)
         v = self._project("v", self.scene.initial_v)
         a = self.disc.create_vec()
+        if self.scheme.dynamic and self.dirichlet_names and self.scene.initial_grad is not None:
+            self._elliptic_projection(u)
         if self.scheme.dynamic:
             rhs = forces.copy()
             self._add_dirichlet_data(0.0, rhs)
@@ -223,6 +234,82 @@ class Simulation:
         elif self.law is not None:
             self.law.slip = self.law.kinematics(u)[1]
         return State(u=u, v=v, a=a)
+
+    def _elliptic_projection(self, u: PETSc.Vec) -> None:
+        """u (overwritten; the guess) = P u0, the elliptic projection of u0 for the penalty
+        operator, contact included:
+
+            (K + alpha_D G_D) P u0 + C(P u0) = -int div sigma(u0) . phi
+                + int_{Gamma_N} sigma(u0) nu . phi + alpha_D int_{Gamma_D} u0 . phi,
+
+        C the frictionless penalty contact force (friction carries no force at t = 0, where
+        xi_0 = u_tau(0)).  For data compatible with u0 (p = sigma(u0) nu, ubar(0) = u0 on
+        Gamma_D, Gamma_C pressed by its own traction) the t = 0 balance then gives
+        M a_0 = int (f(0) + div sigma(u0)) . phi = int rho u''(0) . phi, the L2 projection of
+        the true acceleration: a time-independent solution starts at the discrete
+        equilibrium and stays there, where the L2 projection of u0 excites the stiff
+        penalty modes (an undamped period-2 oscillation with beta = 1/2).  Incompatible data
+        go into a_0, not into u_0 (the right-hand side uses u0, not the data).  Baker (1976)
+        and Dupont (1973) start Galerkin schemes for second-order hyperbolic problems with
+        this projection for their optimal error bounds.  Collective; one factorization more.
+        """
+        rhs = self._projection_rhs()
+        owned = self.disc.owned
+        matrix = (owned["stiffness"] + self.scene.alpha_dirichlet * owned["dirichlet"]).tocsr()
+        if self.law is not None:
+            matrix = with_pattern(matrix, self.disc.contact_pattern)
+        operator = petsc_matrix(self.comm, matrix, matrix.shape[0], self.disc.n_dofs, block_size=2)
+        operator.setOption(PETSc.Mat.Option.SPD, True)
+        operator.setNearNullSpace(self._rigid_body_modes(operator))
+        solver: LinearStepSolver | ContactStepSolver
+        if self.law is None:
+            solver = LinearStepSolver(self.comm, operator)
+        else:
+            solver = ContactStepSolver(self.comm, operator, self.law)  # bound still 0
+        try:
+            solver.solve(rhs, u, 0.0)
+        except SolverError as error:
+            raise SolverError(f"initial elliptic projection of initial.u: {error}") from None
+        finally:
+            for obj in (getattr(solver, "snes", None), getattr(solver, "ksp", None), operator, rhs):
+                if obj is not None:
+                    obj.destroy()
+
+    def _projection_rhs(self) -> PETSc.Vec:
+        """The right-hand side of :meth:`_elliptic_projection` (a new vector).  Collective."""
+        scene, disc, part = self.scene, self.disc, self._part
+        rhs = disc.create_vec()
+        points = disc.domain.points
+        x, y = points.T
+        key = ("initial", "u")
+        div = self.guard.evaluate(key, scene.initial_div_stress, points, 0.0, x, y)  # (2, n_q)
+        disc.domain.integrate(-div.T, rhs)
+        for name in self.neumann_names:
+            boundary = disc.boundary[name]
+            boundary.integrate(self._initial_traction(boundary), part)
+            rhs.axpy(1.0, part)
+        for name in self.dirichlet_names:
+            boundary = disc.boundary[name]
+            x, y = boundary.points.T
+            trace = self.guard.evaluate(key, scene.initial_u, boundary.points, 0.0, x, y)
+            boundary.integrate(trace.T, part)
+            rhs.axpy(scene.alpha_dirichlet, part)
+        self.guard.check()
+        return rhs
+
+    def _initial_traction(self, points) -> np.ndarray:
+        """sigma(u0) nu at boundary ``points``, (n, 2); checked by the guard."""
+        x, y = points.points.T
+
+        def gradient(x, y):
+            return self.scene.initial_grad(x, y).reshape(4, -1)  # (4, n)
+
+        rows = self.guard.evaluate(("initial", "u"), gradient, points.points, 0.0, x, y)
+        grad = rows.T.reshape(-1, 2, 2)  # (n, 2, 2), [q, i, j] = d u0_i / d x_j
+        strain = 0.5 * (grad + np.swapaxes(grad, 1, 2))
+        trace = np.trace(strain, axis1=1, axis2=2)  # (n,)
+        stress = self.scene.lam * trace[:, None, None] * np.eye(2) + 2 * self.scene.mu * strain
+        return np.einsum("qij,qj->qi", stress, points.normals)
 
     def start(self) -> State:
         """Initial state, and the t = 0 row of the per-step table."""
@@ -247,6 +334,7 @@ class Simulation:
             "dissipated_energy": 0.0,
             "external_work": 0.0,
         }
+        row.update(self._coulomb_row(0))
         self._energy_budget = [_stored(row), 0.0]  # initial stored energy, max |work|
         self._check_row(row, 0)
         self.history = [row]
@@ -262,6 +350,8 @@ class Simulation:
         self.guard.check()  # also the friction bound that read_checkpoint set
         self._energy_budget = [_stored(last_row), abs(last_row["external_work"])]
         self.history = [dict(last_row)]
+        if isinstance(self.solver, CoulombStepSolver):
+            self.solver.resume(state.u)  # its first bound, as in the uninterrupted run
         return state
 
     # -- the loop ------------------------------------------------------------------------
@@ -283,6 +373,8 @@ class Simulation:
         if self.scheme.mass_coefficient:
             self.disc.mass.mult(ut, self._work)
             b.axpy(self.scheme.mass_coefficient, self._work)
+        if self.scheme.history is not None:  # generalized-alpha: the previous level's share
+            self._add_history(state, t - self.scheme.k, b)
         ut.copy(new.u)  # initial guess: the predictor
         if self.law is not None:
             self.law.gate(ut)  # where friction acts in this step (friction law)
@@ -305,6 +397,40 @@ class Simulation:
             self._record(state, new, t, forces, newton, linear)
         self._spare = state
         return new
+
+    def _add_history(self, state: State, t_old: float, b: PETSc.Vec) -> None:
+        """b -= w_a M a_{n-1} + w_r r_{n-1}, with (w_a, w_r) = scheme.history.  Collective.
+
+        r_{n-1} = (K + alpha_D G_D) u_{n-1} - F_{n-1} - alpha_D g_D(t_{n-1}) + C(u_{n-1}):
+        the forces of the previous level (F_{n-1} is the step's ``_last_forces``).  Call
+        before the step's ``law.gate`` / ``law.set_time``: C(u_{n-1}) is the force the last
+        step ended with.
+        """
+        inertia_weight, force_weight = self.scheme.history
+        work, force = self._work, self._history
+        self.disc.mass.mult(state.a, work)
+        b.axpy(-inertia_weight, work)
+        self._last_forces.copy(force)
+        self._add_dirichlet_data(t_old, force)
+        force.scale(-1.0)
+        self.disc.stiffness.mult(state.u, work)
+        force.axpy(1.0, work)
+        self.disc.dirichlet.mult(state.u, work)
+        force.axpy(self.scene.alpha_dirichlet, work)
+        if self.law is not None:
+            self._add_level_contact_force(self.law, state.u, force)
+        b.axpy(-force_weight, force)
+
+    def _add_level_contact_force(self, law: ContactLaw, u: PETSc.Vec, out: PETSc.Vec) -> None:
+        """out += C(u): the contact and friction force the last step balanced at u = u_{n-1}.
+
+        The one place generalized-alpha evaluates the contact force of a level (the new
+        level's force is the step solver's); a time discretization of contact that changes
+        the force a step balances changes it here too.  Before the next gate, the friction
+        force alpha_T (u_tau - xi_{n-1}) is the last step's (the return mapping left it
+        inside the bound).  Collective.
+        """
+        law.add_residual(out, *law.kinematics(u))
 
     def _next_level(self, state: State) -> State:
         """The buffers of the new level: the spare one, unless it is ``state`` itself."""
@@ -411,10 +537,32 @@ class Simulation:
             "dissipated_energy": dissipated,
             "external_work": work,
         }
+        row.update(self._coulomb_row(getattr(self.solver, "outer_iterations", 0)))
         self._check_row(row, int(round(t / self.scheme.k)))
         self.history.append(row)
         if not self.keep_history:
             del self.history[:-1]
+
+    def _coulomb_row(self, outer: int) -> dict[str, int]:
+        """The step's outer (friction-bound) iterations for a scene with Coulomb parts.
+
+        Also counts them into the run's totals.  Without Coulomb parts the row has no such
+        column (the per-step table of other scenes is unchanged).
+        """
+        if self.law is None or not self.law.has_coulomb:
+            return {}
+        self.coulomb_iterations += outer
+        self.max_coulomb_per_step = max(self.max_coulomb_per_step, outer)
+        return {"coulomb_iterations": outer}
+
+    def coulomb_summary(self) -> dict[str, int]:
+        """summary.json keys of the Coulomb fixed point (none without Coulomb parts)."""
+        if self.law is None or not self.law.has_coulomb:
+            return {}
+        return {
+            "coulomb_iterations": self.coulomb_iterations,
+            "max_coulomb_per_step": self.max_coulomb_per_step,
+        }
 
     def _load_work(self, u_old, u_new, forces) -> float:
         """Trapezoidal work of F over the step: (F_{n-1} + F_n)/2 . (u_n - u_{n-1}).
@@ -461,6 +609,13 @@ class Simulation:
         """x^T A x for a square DOF matrix A (mass, stiffness).  Collective."""
         matrix.mult(x, self._product)
         return self._product.dot(x)
+
+
+def _contact_solver(comm, a_const: PETSc.Mat, law: ContactLaw) -> ContactStepSolver:
+    """The Newton step solver, with the Coulomb fixed point around it when a part needs it."""
+    if law.has_coulomb:
+        return CoulombStepSolver(comm, a_const, law)
+    return ContactStepSolver(comm, a_const, law)
 
 
 def _stored(row: dict) -> float:

@@ -17,7 +17,7 @@ from mpi4py import MPI
 
 from parefg.discretization.mls import MLS
 from parefg.discretization.quadrature import cell_quadrature
-from parefg.geometry.domains import build_node_cloud
+from parefg.geometry.gmsh_mesh import build_node_cloud
 
 # (degree m, support dilation s, Gauss points per direction)
 CASES = [(1, 2.0, 5), (2, 3.2, 5), (3, 4.0, 7)]

@@ -34,7 +34,7 @@ from parefg.discretization.budget import (
 from parefg.discretization.mls import MLS
 from parefg.discretization.quadrature import cell_quadrature
 from parefg.errors import InputError
-from parefg.geometry.domains import build_node_cloud
+from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.scene.loader import load_scene
 
 COMM = MPI.COMM_WORLD
@@ -171,7 +171,7 @@ def test_estimate_is_within_a_factor_2_of_the_measured_peak(tmp_path):
 
 PROMPTING_MODEL = """
 import gmsh
-from parefg.geometry.domains import _gmsh_initialize
+from parefg.geometry.gmsh_mesh import _gmsh_initialize
 
 _gmsh_initialize(gmsh)
 # point sizes 1e7 times below the model's size make gmsh ask "Do you really want to
@@ -213,7 +213,7 @@ def test_gmsh_never_asks_on_stdin():
 
 STDIN_DURING_MESHING = """
 import os
-from parefg.geometry.domains import _stdin_closed
+from parefg.geometry.gmsh_mesh import _stdin_closed
 
 with _stdin_closed():
     print("inside", os.read(0, 10))
@@ -408,7 +408,7 @@ SQUARE_PARTS = ["bottom", "right", "top", "left"]
 MESH_UNDER_BUDGET = """
 import sys
 from parefg.discretization.budget import Budget, GB
-from parefg.geometry.domains import mesh_domain
+from parefg.geometry.gmsh_mesh import mesh_domain
 from parefg.scene.loader import load_scene
 
 scene = load_scene("square", sys.argv[1:])
@@ -493,7 +493,7 @@ def test_size_floor_leaves_legitimate_refinement_alone(source, name, parts, exte
     budget = Budget(scene, 8 * GB, host_ranks=1, n_ranks=1, given=True)
     assert budget.size_floor(*extent) < scene.h / 4
     if COMM.rank == 0:  # meshing is rank 0's
-        from parefg.geometry.domains import mesh_domain
+        from parefg.geometry.gmsh_mesh import mesh_domain
 
         bounded = mesh_domain(scene.domain, scene.h, scene.cells, budget)
         free = mesh_domain(scene.domain, scene.h, scene.cells)

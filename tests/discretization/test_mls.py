@@ -102,8 +102,8 @@ def test_reproduces_polynomials_on_unit_square(cloud, degree, weight):
 
 @pytest.fixture(scope="module")
 def geometry_clouds():
-    """Square and Z node clouds from parefg.geometry.domains (collective: built on every rank)."""
-    geometry = pytest.importorskip("parefg.geometry.domains")
+    """Square and Z node clouds from parefg.geometry.gmsh_mesh (collective: built on every rank)."""
+    geometry = pytest.importorskip("parefg.geometry.gmsh_mesh")
     return {
         shape: geometry.build_node_cloud(MPI.COMM_WORLD, {"shape": shape}, H)
         for shape in ("square", "z")

@@ -146,7 +146,7 @@ def test_bad_order_is_input_error():
 
 
 def test_z_domain_area_perimeter_and_divergence_theorem():
-    geometry = pytest.importorskip("parefg.geometry.domains")
+    geometry = pytest.importorskip("parefg.geometry.gmsh_mesh")
     cloud = geometry.build_node_cloud(MPI.COMM_WORLD, {"shape": "z"}, 0.1)
     z = [(0, 0), (1, 0), (1, 0.25), (0.4, 0.25), (1, 0.75), (1, 1), (0, 1), (0, 0.75), (0.6, 0.75),
          (0, 0.25)]  # fmt: skip

@@ -18,12 +18,12 @@ from hypothesis import strategies as st
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry import domains
-from parefg.geometry.domains import build_node_cloud
+from parefg.geometry import gmsh_mesh, shapes
 from parefg.geometry.geo import MAX_GEO_BYTES, load_geo, sanitize_geo
 from parefg.geometry.geo.bounds import run_program
 from parefg.geometry.geo.statements import StatementParser
 from parefg.geometry.geo.tokens import tokenize
+from parefg.geometry.gmsh_mesh import build_node_cloud
 
 COMM = MPI.COMM_WORLD
 SQUARE = (
@@ -270,9 +270,9 @@ def test_example_meshes_mesh_as_gmsh_meshes_the_original(monkeypatch, name, part
     """The checked text gives the very mesh the original file gives (not collective)."""
     path = str(REPO / "meshes" / name)
     domain = {"shape": "geo", "file": path, "parts": parts}
-    checked = domains.mesh_domain(domain, 0.1)
-    monkeypatch.setattr(domains, "load_geo", lambda p, **_: Path(p).read_text())
-    original = domains.mesh_domain(domain, 0.1)
+    checked = gmsh_mesh.mesh_domain(domain, 0.1)
+    monkeypatch.setattr(shapes, "load_geo", lambda p, **_: Path(p).read_text())
+    original = gmsh_mesh.mesh_domain(domain, 0.1)
     assert checked.n_nodes == original.n_nodes > 50
     np.testing.assert_array_equal(checked.coords, original.coords)
     np.testing.assert_array_equal(checked.segments, original.segments)

@@ -13,7 +13,8 @@ from conftest import REPO
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry.domains import build_node_cloud, orient_counter_clockwise
+from parefg.geometry.cloud import orient_counter_clockwise
+from parefg.geometry.gmsh_mesh import build_node_cloud
 
 COMM = MPI.COMM_WORLD
 PLATE_GEO = str(REPO / "meshes" / "plate_with_hole.geo")

@@ -12,7 +12,8 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry.domains import NodeCloud, build_node_cloud, node_spacing
+from parefg.geometry.cloud import NodeCloud, node_spacing
+from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.geometry.jitter import jitter_cloud
 from parefg.scene.loader import load_scene
 

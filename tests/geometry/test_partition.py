@@ -7,7 +7,7 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry.domains import build_node_cloud
+from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.geometry.partition import interface_fraction, partition_cloud
 
 COMM = MPI.COMM_WORLD

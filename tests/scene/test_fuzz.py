@@ -30,7 +30,8 @@ from hypothesis import strategies as st
 
 from parefg.errors import InputError
 from parefg.scene.expressions import compile_field, parse_expression
-from parefg.scene.loader import SECTIONS, Scene, load_scene
+from parefg.scene.loader import Scene, load_scene
+from parefg.scene.schema import SECTIONS
 
 pytestmark = pytest.mark.serial_only
 

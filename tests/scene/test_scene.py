@@ -328,7 +328,10 @@ BAD_OVERRIDES = [
     (["time.dt=-0.1"], "time.dt = -0.1: must be > 0"),
     (["time.dt=2"], "time.dt = 2: must be > 0 and <= time.T"),
     (["time.dt=0.3"], "time.dt = 0.3: T / dt = 3.33333 must be an integer"),
-    (["time.scheme=euler"], "time.scheme = 'euler': must be one of 'newmark', 'static'"),
+    (
+        ["time.scheme=euler"],
+        "time.scheme = 'euler': must be one of 'newmark', 'generalized-alpha', 'static'",
+    ),
     (["time.beta=0"], "time.beta = 0"),
     (["time.gamma=0.4"], "time.gamma = 0.4"),
     (["material.nu=0.5"], "material.nu = 0.5: must be in (-1, 0.5)"),

@@ -13,12 +13,9 @@ from conftest import run_parefg
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.geometry.domains import (
-    MAX_POLYGON_VERTICES,
-    Z_VERTICES,
-    build_node_cloud,
-    polygon_defect,
-)
+from parefg.geometry.gmsh_mesh import build_node_cloud
+from parefg.geometry.polygon import MAX_POLYGON_VERTICES, polygon_defect
+from parefg.geometry.shapes import Z_VERTICES
 from parefg.scene.loader import load_scene
 
 COMM = MPI.COMM_WORLD

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 from conftest import PAREFG, mpi_env
 
-from parefg.run import _output_fields, prepare, run_scene
+from parefg.io.observers import output_fields as _output_fields
+from parefg.run import prepare, run_scene
 from parefg.scene.loader import load_scene
 
 TINY = ["discretization.h=0.25", "discretization.degree=1"]

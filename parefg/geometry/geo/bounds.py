@@ -33,10 +33,10 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from parefg.errors import InputError
+from parefg.geometry.geo.arithmetic import FUNCTIONS, binary, combine, finite, unary
 
 MAX_LOOP_ITERATIONS = 10_000
 MAX_LIST_LENGTH = 100_000
@@ -51,25 +51,6 @@ INT_LIMIT = 2**31  # gmsh casts to a C int
 MAX_TRANSFINITE_CURVE_NODES = 20_000
 MAX_TRANSFINITE_SURFACE_NODES = 1_000_000
 MESH_SIZE_MAX = "Mesh.MeshSizeMax"  # the variable holding h (parefg.geometry.geo.expressions)
-
-
-def _hypot(a: float, b: float) -> float:
-    return math.sqrt(a * a + b * b)  # gmsh's Hypot, not math.hypot (which rounds differently)
-
-
-#: name -> (number of arguments, the C function gmsh calls); Rand has no known value
-FUNCTIONS: dict[str, tuple[int, Callable[..., float] | None]] = {
-    "Exp": (1, math.exp), "Log": (1, math.log), "Log10": (1, math.log10),
-    "Sqrt": (1, math.sqrt), "Sin": (1, math.sin), "Asin": (1, math.asin),
-    "ArcSin": (1, math.asin), "Cos": (1, math.cos), "Acos": (1, math.acos),
-    "ArcCos": (1, math.acos), "Tan": (1, math.tan), "Atan": (1, math.atan),
-    "ArcTan": (1, math.atan), "Atan2": (2, math.atan2), "ArcTan2": (2, math.atan2),
-    "Sinh": (1, math.sinh), "Cosh": (1, math.cosh), "Tanh": (1, math.tanh),
-    "Fabs": (1, abs), "Abs": (1, abs), "Floor": (1, math.floor), "Ceil": (1, math.ceil),
-    "Round": (1, lambda x: math.floor(x + 0.5)), "Fmod": (2, math.fmod),
-    "Modulo": (2, math.fmod), "Hypot": (2, _hypot), "Max": (2, max), "Min": (2, min),
-    "Rand": (1, None),
-}  # fmt: skip
 
 
 @dataclass
@@ -242,7 +223,7 @@ class _Run:
             length = self.length(tree, state)
         single = node.target == "scalar" and length == 1 and _is_single(tree)
         if single and (node.op == "=" or name in state.scalars):
-            self._set(state, name, _combine(node.op, state.values.get(name), value), 1, True)
+            self._set(state, name, combine(node.op, state.values.get(name), value), 1, True)
         elif node.op == "=":
             self._set(state, name, None, length, scalar=False)
         else:  # append (+=), remove (-=) or an error (*=, /= on a list): at most one more
@@ -368,7 +349,7 @@ class _Run:
         if kind == "unknown":
             return None
         if kind.startswith("unary"):
-            return _finite(_unary(kind[-1], self.value(expr[1], state)))
+            return finite(unary(kind[-1], self.value(expr[1], state)))
         if kind == "call":
             return self.call(expr[1], [self.value(arg, state) for arg in expr[2]])
         # ("chain", first, [(op, operand), ...]): gmsh evaluates both sides of every operator
@@ -378,7 +359,7 @@ class _Run:
             if op == "%":
                 result = self.modulo(result, right)
             else:
-                result = _finite(_binary(op, result, right))
+                result = finite(binary(op, result, right))
         return result
 
     def modulo(self, left: float | None, right: float | None) -> float | None:
@@ -395,55 +376,9 @@ class _Run:
         if function is None or any(arg is None for arg in args):
             return None
         try:
-            return _finite(float(function(*args)))
+            return finite(float(function(*args)))
         except (ValueError, OverflowError):  # C returns NaN or inf: unknown here
             return None
-
-
-def _unary(op: str, operand: float | None) -> float | None:
-    if operand is None:
-        return None
-    if op == "-":
-        return -operand
-    if op == "+":
-        return operand
-    return 0.0 if operand else 1.0
-
-
-def _binary(op: str, a: float | None, b: float | None) -> float | None:
-    if a is None or b is None:
-        return None
-    try:
-        if op == "+":
-            return a + b
-        if op == "-":
-            return a - b
-        if op == "*":
-            return a * b
-        if op == "/":
-            return a / b if b else None  # gmsh: "Division by zero", value undefined
-        if op == "^":
-            return math.pow(a, b)
-    except (ValueError, OverflowError):
-        return None
-    comparisons = {
-        "<": a < b, ">": a > b, "<=": a <= b, ">=": a >= b, "==": a == b, "!=": a != b,
-        "&&": bool(a) and bool(b), "||": bool(a) or bool(b),
-    }  # fmt: skip
-    return float(comparisons[op])
-
-
-def _finite(value: float | None) -> float | None:
-    return value if value is not None and math.isfinite(value) else None
-
-
-def _combine(op: str, old: float | None, new: float | None) -> float | None:
-    """``x op= new`` on a scalar (Gmsh.y Affectation); ``/= 0`` leaves x unknown."""
-    if op == "=":
-        return new
-    if op == "/=" and new == 0:
-        return None
-    return _finite(_binary({"+=": "+", "-=": "-", "*=": "*", "/=": "/"}[op], old, new))
 
 
 def _merge(state: _State, outcomes: list[_State]) -> None:

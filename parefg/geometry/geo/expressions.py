@@ -13,7 +13,8 @@ so no input can exhaust Python's stack.
 from __future__ import annotations
 
 from parefg.errors import InputError
-from parefg.geometry.geo.bounds import FUNCTIONS, MESH_SIZE_MAX  # a name no .geo variable has
+from parefg.geometry.geo.arithmetic import FUNCTIONS
+from parefg.geometry.geo.bounds import MESH_SIZE_MAX  # a name no .geo variable has
 from parefg.geometry.geo.tokens import COMMAND_NAMES, Span, Token, hides_control_word, is_keyword
 
 MAX_NESTING = 40  # parentheses, unary operators and If/For blocks inside each other

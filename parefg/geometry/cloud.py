@@ -1,0 +1,108 @@
+"""The node cloud: EFG nodes, background cells and tagged boundary segments (SPEC 5).
+
+:class:`NodeCloud` is plain data, the same on every rank; the helpers here compute what
+follows from its arrays alone (mesh edges, local node spacing, cell areas and
+orientation).  Nothing here is collective, and nothing here knows gmsh: the clouds are
+made by :mod:`parefg.geometry.gmsh_mesh` and perturbed by :mod:`parefg.geometry.jitter`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from parefg.errors import InputError
+
+#: Spatial dimension of the node clouds (coordinates are (n, DIM) arrays).
+DIM = 2
+
+
+@dataclass
+class NodeCloud:
+    """EFG nodes, background cells and tagged boundary segments of one domain.
+
+    Attributes
+    ----------
+    coords : (n_nodes, DIM) float
+        Node positions x_I.
+    spacing : (n_nodes,) float
+        Local node spacing c_I: mean length of the mesh edges incident to node I.
+    quads : (n_quads, 4) int64
+        Quadrilateral cells, counter-clockwise (possibly empty).
+    triangles : (n_triangles, 3) int64
+        Triangular cells, counter-clockwise (possibly empty).
+    segments : (n_segments, 2) int64
+        Boundary segments (a, b) with the domain on their left, so the outward
+        unit normal is (y_b - y_a, -(x_b - x_a)) / |x_b - x_a|.
+    segment_part : (n_segments,) int64
+        Index of each segment's boundary part in ``part_names``.
+    part_names : list of str
+        Boundary part names; ``"_free"`` collects segments of a user .geo that
+        are on no listed part.
+    original_index : (n_nodes,) int64
+        Index of each node in the cloud as gmsh built it.
+    """
+
+    coords: np.ndarray
+    spacing: np.ndarray
+    quads: np.ndarray
+    triangles: np.ndarray
+    segments: np.ndarray
+    segment_part: np.ndarray
+    part_names: list[str]
+    original_index: np.ndarray
+
+    @property
+    def n_nodes(self) -> int:
+        """Number of nodes N."""
+        return len(self.coords)
+
+    @property
+    def dim(self) -> int:
+        """Spatial dimension d of the coordinates."""
+        return self.coords.shape[1]
+
+
+def directed_edges(quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(n_cells_edges, 2) int64 edges (c_i, c_{i+1}) of every cell, in cell order."""
+    blocks = [np.empty((0, 2), dtype=np.int64)]
+    for cells in (quads, triangles):
+        blocks.append(np.stack([cells, np.roll(cells, -1, axis=1)], axis=-1).reshape(-1, 2))
+    return np.vstack(blocks).astype(np.int64)
+
+
+def mesh_edges(quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(n_edges, 2) int64 unique undirected mesh edges (a < b), sorted."""
+    directed = directed_edges(quads, triangles)
+    return np.unique(np.sort(directed, axis=1), axis=0)
+
+
+def signed_areas(coords: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """(n_cells,) shoelace areas 1/2 sum_i (x_i y_{i+1} - x_{i+1} y_i); > 0 when CCW."""
+    corners = coords[cells]  # (n_cells, n_corners, 2)
+    following = np.roll(corners, -1, axis=1)
+    cross = corners[..., 0] * following[..., 1] - following[..., 0] * corners[..., 1]
+    return 0.5 * cross.sum(axis=1)
+
+
+def orient_counter_clockwise(coords: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Cells with clockwise ones reversed; InputError for a degenerate cell."""
+    cells = np.array(cells, dtype=np.int64).reshape(-1, cells.shape[-1])
+    areas = signed_areas(coords, cells)
+    cells[areas < 0] = cells[areas < 0, ::-1]
+    scale = np.ptp(coords, axis=0).max() if len(coords) else 1.0
+    degenerate = np.abs(areas) <= 1e-14 * scale**2
+    if np.any(degenerate):
+        bad = int(np.flatnonzero(degenerate)[0])
+        raise InputError(f"domain: degenerate mesh cell with corners {coords[cells[bad]].tolist()}")
+    return cells
+
+
+def node_spacing(coords: np.ndarray, quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(n_nodes,) c_I = mean length of the mesh edges incident to node I (any dimension)."""
+    edges = mesh_edges(quads, triangles)
+    lengths = np.linalg.norm(coords[edges[:, 1]] - coords[edges[:, 0]], axis=1)
+    total = np.bincount(edges.ravel(), weights=np.repeat(lengths, 2), minlength=len(coords))
+    count = np.bincount(edges.ravel(), minlength=len(coords))
+    return total / count

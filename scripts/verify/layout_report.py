@@ -1,0 +1,123 @@
+"""The package's shape: one line per module, sizes, the longest functions, import layers.
+
+Prints the tree of ``parefg`` with each module's line count and the first line of its
+docstring, the longest functions, and every import that goes upward in the layer order
+(or forms a cycle).  Exits 1 when an import breaks the layering.
+
+    python scripts/verify/layout_report.py [--longest 15]
+"""
+
+import argparse
+import ast
+import pathlib
+import sys
+
+PACKAGE = pathlib.Path(__file__).resolve().parents[2] / "parefg"
+
+#: lowest first: a module may import from its own layer or a lower one only
+LAYERS = (
+    ("_env", "errors", "profiling", "parallel", "guards", "petsc_options", "boundary"),
+    ("geometry",),
+    ("discretization",),
+    ("mechanics",),
+    ("timestepping",),
+    ("scene",),
+    ("io",),
+    ("run", "sweep", "commands", "cli", "__init__"),
+)
+
+
+def layer_of(module: str) -> int:
+    """Layer index of a dotted module name inside parefg (its first component)."""
+    top = module.split(".")[1] if module.count(".") else "__init__"
+    for index, names in enumerate(LAYERS):
+        if top in names:
+            return index
+    raise KeyError(f"{module}: not in LAYERS (scripts/verify/layout_report.py)")
+
+
+def module_name(path: pathlib.Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports_of(tree: ast.AST, name: str, is_package: bool) -> set[str]:
+    """parefg modules imported anywhere in a module (also inside functions)."""
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names if alias.name.startswith("parefg")}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = name.split(".")
+                anchor = anchor if is_package else anchor[:-1]
+                base = ".".join(anchor[: len(anchor) - node.level + 1] + ([base] if base else []))
+            if base.startswith("parefg"):
+                found.add(base)
+    return found
+
+
+def functions_of(tree: ast.AST):
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            yield node.name, node.end_lineno - node.lineno + 1, node.lineno
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--longest", type=int, default=15)
+    args = parser.parse_args()
+    modules, functions, graph = {}, [], {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        text = path.read_text()
+        tree = ast.parse(text)
+        name = module_name(path)
+        doc = (ast.get_docstring(tree) or "").strip().splitlines()
+        modules[name] = (len(text.splitlines()), doc[0] if doc else "(no docstring)")
+        graph[name] = imports_of(tree, name, path.name == "__init__.py")
+        functions += [(n, length, f"{name}:{line}") for n, length, line in functions_of(tree)]
+    for name, (lines, doc) in modules.items():
+        indent = "  " * name.count(".")
+        print(f"{indent}{name.split('.')[-1]:<{28 - len(indent)}} {lines:5d}  {doc[:80]}")
+    print(f"\n{len(modules)} modules, {sum(n for n, _ in modules.values())} lines;"
+          f" over 400 lines: {[m for m, (n, _) in modules.items() if n > 400]}")
+    print(f"\nlongest functions (of {len(functions)}):")
+    for fname, length, where in sorted(functions, key=lambda f: -f[1])[: args.longest]:
+        print(f"  {length:4d}  {fname:<32} {where}")
+    upward = [
+        f"{src} -> {dst}"
+        for src, targets in graph.items()
+        for dst in targets
+        if dst != "parefg" and layer_of(dst) > layer_of(src)
+    ]
+    print(f"\nupward imports: {upward or 'none'}")
+    cycles = find_cycles(graph)
+    print(f"import cycles between modules: {cycles or 'none'}")
+    return 1 if upward or cycles else 0
+
+
+def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Module-level cycles (depth-first search over the import graph)."""
+    cycles, state = [], {}
+
+    def visit(node, stack):
+        state[node] = "open"
+        for target in sorted(graph.get(node, ())):
+            target = target if target in graph else target.rsplit(".", 1)[0]
+            if target not in graph or target == node:
+                continue
+            if state.get(target) == "open":
+                cycles.append(stack[stack.index(target):] + [target])
+            elif target not in state:
+                visit(target, stack + [target])
+        state[node] = "done"
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    return cycles
+
+
+if __name__ == "__main__":
+    sys.exit(main())
