@@ -28,6 +28,7 @@ demo: setup
 
 lint: setup
 	$(VENV)/bin/ruff check parefg tests scripts
+	$(VENV)/bin/mypy parefg
 
 test: lint
 	$(PY) -m pytest -p no:cacheprovider tests

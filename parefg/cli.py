@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
 from parefg import __version__
 from parefg.errors import InputError, SolverError
@@ -68,6 +67,7 @@ def _count(text: str) -> int:
 _count.__name__ = "non-negative integer"  # argparse names the type in its message
 
 
+FINISH_PATIENCE = 10.0  # seconds the ranks of a failed run wait for each other at the end
 MAX_MEMORY_HELP = (
     "memory a run may use on each machine, in GB (default: 80%% of its available memory); "
     "a scene estimated to need more is refused before meshing"
@@ -129,18 +129,6 @@ def _install_abort_hook() -> None:
     sys.excepthook = hook
 
 
-def _finish_collectively(comm, code: int) -> None:
-    """Wait briefly for every rank to reach the same error; abort the job if some do not."""
-    if comm.size == 1:
-        return
-    request = comm.Ibarrier()
-    deadline = time.monotonic() + 10.0
-    while not request.Test():
-        if time.monotonic() > deadline:
-            comm.Abort(code)
-        time.sleep(0.01)
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ours, petsc_options = _split_petsc_options(argv)
@@ -150,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     petsc4py.init([sys.argv[0], *petsc_options])
     from mpi4py import MPI
 
+    from parefg.parallel import wait_for_all
+
     _install_abort_hook()
     comm = MPI.COMM_WORLD
     try:
@@ -157,7 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, SolverError) as error:
         if comm.rank == 0:
             print(f"parefg: error: {error}", file=sys.stderr, flush=True)
-        _finish_collectively(comm, error.exit_code)
+        # every rank reaches the same error; one that does not within FINISH_PATIENCE
+        # seconds is stuck in a collective, and the job is aborted
+        wait_for_all(comm, patience=FINISH_PATIENCE, abort_code=error.exit_code)
         return error.exit_code
 
 

@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import time
 from contextlib import contextmanager
 
 from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
+from parefg.parallel import default_options, raise_everywhere, wait_for_all
 
 # Options PETSc reads only in PetscFinalize, after any check a run can make.
 _READ_AT_FINALIZE = {
@@ -42,7 +42,6 @@ _OUT_OF_MEMORY = 55
 AGREEMENT_TIMEOUT = 60.0
 
 
-@contextmanager
 def scene_options(solver_options: dict[str, str]):
     """Insert the scene's [solver] options for the duration of the block.
 
@@ -50,15 +49,7 @@ def scene_options(solver_options: dict[str, str]):
     line wins; exactly the inserted names are deleted on exit, whatever happens.
     Yields the names inserted.  Not collective (every rank does the same).
     """
-    options = PETSc.Options()
-    inserted = [name for name in solver_options if not options.hasName(name)]
-    for name in inserted:
-        options.setValue(name, solver_options[name])
-    try:
-        yield inserted
-    finally:
-        for name in inserted:
-            options.delValue(name)
+    return default_options("", solver_options)
 
 
 def _library():
@@ -152,33 +143,19 @@ def petsc_configuration(comm, what: str, scene: dict[str, str]):
     ``what`` says what is set up; ``scene`` is the scene's [solver] table (to name an
     option as the scene spelled it).
 
-    Every rank leaves the block, then the ranks agree (one allgather): if any rank failed,
-    every rank raises the first failing rank's message, so no rank is left behind.  An
+    Every rank leaves the block (:func:`~parefg.parallel.wait_for_all`), then the ranks
+    agree (:func:`~parefg.parallel.raise_everywhere`): if any rank failed, every rank
+    raises the first failing rank's message, so no rank is left behind.  An
     out-of-memory error is re-raised as it is; a zero pivot or non-convergence is a
     :class:`SolverError`.
     """
-    failure = None
+    error: Exception | None = None
     try:
         yield
-    except PETSc.Error as error:
-        if error.ierr == _OUT_OF_MEMORY:
+    except PETSc.Error as failure:
+        if failure.ierr == _OUT_OF_MEMORY:
             raise
-        kind = "solver" if error.ierr in _SOLVER_FAILURES else "input"
-        failure = (kind, describe_petsc_error(error, what, scene))
-    _meet(comm, patience=None if failure is None else AGREEMENT_TIMEOUT)
-    failures = [f for f in comm.allgather(failure) if f is not None]
-    if failures:
-        kind, message = failures[0]
-        raise (SolverError if kind == "solver" else InputError)(message)
-
-
-def _meet(comm, patience: float | None) -> None:
-    """Wait until every rank arrives; abort the job after ``patience`` seconds.  Collective."""
-    if comm.size == 1:
-        return
-    request = comm.Ibarrier()
-    deadline = None if patience is None else time.monotonic() + patience
-    while not request.Test():
-        if deadline is not None and time.monotonic() > deadline:
-            comm.Abort(2)
-        time.sleep(0.001)
+        kind = SolverError if failure.ierr in _SOLVER_FAILURES else InputError
+        error = kind(describe_petsc_error(failure, what, scene))
+    wait_for_all(comm, patience=None if error is None else AGREEMENT_TIMEOUT, abort_code=2)
+    raise_everywhere(comm, error)

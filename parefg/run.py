@@ -21,6 +21,7 @@ from parefg.io.checkpoint import read_checkpoint
 from parefg.io.monitors import Progress, StopRequest
 from parefg.io.observers import CheckpointObserver, ResultsObserver
 from parefg.io.output import ResultWriter
+from parefg.parallel import call_on_root
 from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
 from parefg.profiling import factorization_stats, phase, start_logging
 from parefg.scene.loader import load_scene
@@ -37,18 +38,20 @@ def plan_output_dir(comm, scene_name: str, requested: str | None) -> Path:
     under a file; what only mkdir can tell (/proc, a read-only file system) is
     refused by :func:`create_output_dir`.
     """
-    message, path = None, None
-    if comm.rank == 0:
-        if requested is not None:
-            path = Path(requested)
-        else:
-            base = Path("runs") / scene_name
-            path, n = base, 1
-            while path.exists() or path.is_symlink():
-                n += 1
-                path = base.with_name(f"{base.name}-{n}")
-        message = _unusable_output(path, requested)
-    message, path = comm.bcast((message, path), root=0)
+    return call_on_root(comm, _planned_output_dir, scene_name, requested)
+
+
+def _planned_output_dir(scene_name: str, requested: str | None) -> Path:
+    """:func:`plan_output_dir` on one rank: the path, or InputError saying why not."""
+    if requested is not None:
+        path = Path(requested)
+    else:
+        base = Path("runs") / scene_name
+        path, n = base, 1
+        while path.exists() or path.is_symlink():
+            n += 1
+            path = base.with_name(f"{base.name}-{n}")
+    message = _unusable_output(path, requested)
     if message:
         raise InputError(message)
     return path
@@ -60,20 +63,21 @@ def create_output_dir(comm, path: Path, requested: str | None) -> list[Path]:
     On failure the directories this call created are removed again and InputError is
     raised on every rank.
     """
-    message, created = None, []
-    if comm.rank == 0:
-        missing = [p for p in (path, *path.parents) if not (p.exists() or p.is_symlink())]
-        try:
-            for directory in reversed(missing):
-                directory.mkdir()
-                created.append(directory)
-        except OSError as error:
-            remove_empty_dirs(created)
-            created = []
-            message = f"{_output_label(path, requested)}: cannot create it ({_os_reason(error)})"
-    message, created = comm.bcast((message, created), root=0)
-    if message:
-        raise InputError(message)
+    return call_on_root(comm, _created_output_dir, path, requested)
+
+
+def _created_output_dir(path: Path, requested: str | None) -> list[Path]:
+    """:func:`create_output_dir` on one rank."""
+    missing = [p for p in (path, *path.parents) if not (p.exists() or p.is_symlink())]
+    created: list[Path] = []
+    try:
+        for directory in reversed(missing):
+            directory.mkdir()
+            created.append(directory)
+    except OSError as error:
+        remove_empty_dirs(created)
+        reason = _os_reason(error)
+        raise InputError(f"{_output_label(path, requested)}: cannot create it ({reason})") from None
     return created
 
 

@@ -8,8 +8,8 @@ Each rank evaluates the MLS shape functions at its own points only and builds it
 contributions as scipy CSR matrices with *global* column indices.  Square operators
 (mass, stiffness, penalty) have rows on every node the rank's points touch; the rows
 owned by other ranks are sent to their owners in one all-to-all exchange
-(:func:`owned_rows`), so each rank ends with exactly its block of rows and the PETSc
-matrix is created with exact preallocation.  Rectangular point operators (values or
+(:func:`parefg.parallel.owned_rows`), so each rank ends with exactly its block of rows
+and the PETSc matrix is created with exact preallocation.  Rectangular point operators (values or
 gradients at this rank's points) need no exchange: their rows are this rank's points.
 """
 
@@ -19,8 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from mpi4py import MPI
-from petsc4py import PETSc
 
 from parefg.discretization import assembly_kernels as kernels
 from parefg.discretization.mls import ShapeValues
@@ -54,21 +52,11 @@ def _point_rows(nodes, mask, data, components, stride, n_cols) -> sp.csr_matrix:
     )
 
 
-def shape_matrix(shape: ShapeValues, n_nodes: int, derivative: int | None = None) -> sp.csr_matrix:
-    """Scalar point-to-node matrix: row q holds phi_I(x_q) (or d phi_I / d x_derivative).
-
-    Returns a (n_points, n_nodes) CSR matrix with sorted columns; padding entries dropped.
-    """
-    order, nodes, mask = _sorted_neighbours(shape, n_nodes)
-    values = shape.phi if derivative is None else shape.dphi[:, :, derivative]
-    values = np.take_along_axis(values, order, axis=1)[:, None, :]  # (n_points, 1, n_max)
-    return _point_rows(nodes, mask, values, np.zeros(1, dtype=np.int64), 1, n_nodes)
-
-
 def value_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     """(2 n_points x 2 n_nodes) interleaved values: entry (2q + c, 2I + c) = phi_I(x_q).
 
-    Equal to ``interleave(shape_matrix(shape, n_nodes))``, built without the Kronecker product.
+    kron(S, I_2) of the scalar (n_points x n_nodes) matrix S[q, I] = phi_I(x_q), built
+    without the Kronecker product.
     """
     order, nodes, mask = _sorted_neighbours(shape, n_nodes)
     phi = np.take_along_axis(shape.phi, order, axis=1)[:, None, :]  # (n_points, 1, n_max)
@@ -77,18 +65,12 @@ def value_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
 
 def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     """(4 n_points x 2 n_nodes) gradients: row 4q + 2c + d = d phi_I / d x_d on DOF 2I + c."""
+    if shape.dphi is None:
+        raise ValueError("gradient_operator needs shape values evaluated with gradients")
     order, nodes, mask = _sorted_neighbours(shape, n_nodes)
     dphi = np.take_along_axis(shape.dphi, order[:, :, None], axis=1)  # (n_points, n_max, 2)
     per_row = dphi.transpose(0, 2, 1)[:, [0, 1, 0, 1], :]  # (n_points, 4, n_max): d = 0, 1, 0, 1
     return _point_rows(nodes, mask, per_row, np.array([0, 0, 1, 1]), 2, 2 * n_nodes)
-
-
-def interleave(scalar: sp.spmatrix) -> sp.csr_matrix:
-    """Expand a scalar (rows x nodes) operator to both displacement components.
-
-    kron(S, I_2): entry (2q + c, 2I + c) = S[q, I], matching the interleaved DOF numbering.
-    """
-    return sp.kron(scalar, sp.identity(2, format="csr"), format="csr")
 
 
 @dataclass
@@ -191,99 +173,3 @@ class Coupling:
         )
         n_dofs = 2 * self.n_nodes
         return sp.csr_matrix((data, indices, indptr), shape=(n_dofs, n_dofs))
-
-
-def _alltoallv(comm, send: np.ndarray, send_counts: np.ndarray) -> np.ndarray:
-    """Exchange a 1-D array in blocks: block r of ``send`` goes to rank r.  Collective."""
-    recv_counts = np.empty(comm.size, dtype=np.int64)
-    comm.Alltoall(send_counts.astype(np.int64), recv_counts)
-    recv = np.empty(int(recv_counts.sum()), dtype=send.dtype)
-    send_displs = np.concatenate([[0], np.cumsum(send_counts)[:-1]])
-    recv_displs = np.concatenate([[0], np.cumsum(recv_counts)[:-1]])
-    mpi_type = MPI._typedict[send.dtype.char]
-    comm.Alltoallv(
-        [send, (send_counts, send_displs), mpi_type], [recv, (recv_counts, recv_displs), mpi_type]
-    )
-    return recv
-
-
-def owned_rows(comm, local: sp.spmatrix, row_ranges: np.ndarray) -> sp.csr_matrix:
-    """Sum every rank's contributions into the rows each rank owns.  Collective.
-
-    Parameters
-    ----------
-    local : (n_rows, n_cols) sparse matrix with global row and column indices holding this
-        rank's contributions (rows anywhere).
-    row_ranges : (comm.size + 1,) rank r owns rows row_ranges[r]:row_ranges[r + 1].
-
-    Returns
-    -------
-    (n_owned_rows, n_cols) CSR matrix of the summed owned rows, duplicates added, explicit
-    zeros kept (they carry sparsity patterns reserved for later values).
-    """
-    local = sp.csr_matrix(local)
-    local.sum_duplicates()  # canonical CSR: sorted columns, duplicates added, zeros kept
-    start, stop = row_ranges[comm.rank], row_ranges[comm.rank + 1]
-    if comm.size == 1:
-        return local
-    # CSR rows come grouped by owner already: rank r's entries are one contiguous slice
-    counts = np.diff(local.indptr[row_ranges])  # (comm.size,)
-    entry_rows = np.repeat(np.arange(local.shape[0]), np.diff(local.indptr))  # (nnz,)
-    rows = _alltoallv(comm, entry_rows.astype(np.int64), counts)
-    cols = _alltoallv(comm, local.indices.astype(np.int64), counts)
-    data = _alltoallv(comm, local.data.astype(np.float64), counts)
-    owned = sp.coo_matrix((data, (rows - start, cols)), shape=(stop - start, local.shape[1]))
-    return owned.tocsr()  # sums duplicates, keeps explicit zeros
-
-
-def _csr_arrays(matrix: sp.csr_matrix):
-    matrix.sort_indices()
-    return (
-        matrix.indptr.astype(PETSc.IntType),
-        matrix.indices.astype(PETSc.IntType),
-        matrix.data.astype(PETSc.ScalarType),
-    )
-
-
-def petsc_matrix(comm, owned: sp.csr_matrix, n_cols_local: int, n_cols: int, block_size: int = 1):
-    """PETSc AIJ matrix from this rank's owned rows (global columns).  Collective.
-
-    The CSR arrays give the exact preallocation; no mallocs during later value updates
-    within the same pattern.
-    """
-    n_rows_local = owned.shape[0]
-    matrix = PETSc.Mat().createAIJ(
-        size=((n_rows_local, PETSc.DETERMINE), (n_cols_local, n_cols)),
-        csr=_csr_arrays(owned),
-        bsize=block_size if block_size > 1 else None,
-        comm=comm,
-    )
-    matrix.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
-    matrix.assemble()
-    return matrix
-
-
-def add_owned_rows(matrix, owned: sp.csr_matrix) -> None:
-    """Add owned-row values (a pattern subset of ``matrix``) into a PETSc matrix.  Collective."""
-    matrix.setValuesCSR(*_csr_arrays(owned), addv=PETSc.InsertMode.ADD_VALUES)
-    matrix.assemble()
-
-
-def gram_matrix(left: sp.csr_matrix, weights: np.ndarray, right: sp.csr_matrix) -> sp.csr_matrix:
-    """sum_q weights_q left[q, :]^T right[q, :], the quadrature of a bilinear form."""
-    return (left.T @ sp.diags(weights) @ right).tocsr()
-
-
-def with_pattern(matrix: sp.csr_matrix, pattern: sp.csr_matrix) -> sp.csr_matrix:
-    """``matrix`` with explicit zeros added wherever ``pattern`` has an entry.
-
-    scipy's sparse sum drops zeros; going through COO keeps them, which reserves the
-    Gamma_C coupling in A_const so that contact terms never change the PETSc pattern.
-    """
-    if pattern.nnz == 0:
-        return sp.csr_matrix(matrix)
-    a, p = matrix.tocoo(), pattern.tocoo()
-    rows = np.concatenate([a.row, p.row])
-    cols = np.concatenate([a.col, p.col])
-    data = np.concatenate([a.data, np.zeros(p.nnz)])
-    return sp.coo_matrix((data, (rows, cols)), shape=matrix.shape).tocsr()

@@ -213,7 +213,7 @@ class MLS:
             phi[chunk], chunk_dphi, condition[chunk] = self._evaluate_chunk(
                 points[chunk], neighbours[chunk], mask[chunk], gradients
             )
-            if gradients:
+            if dphi is not None:
                 dphi[chunk] = chunk_dphi
         return ShapeValues(neighbours, mask, phi, dphi, condition)
 

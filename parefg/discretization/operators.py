@@ -17,19 +17,14 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.boundary import BoundaryKind
-from parefg.discretization.assembly import (
-    Coupling,
-    gradient_operator,
-    owned_rows,
-    petsc_matrix,
-    value_operator,
-)
+from parefg.discretization.assembly import Coupling, gradient_operator, value_operator
 from parefg.discretization.budget import Budget, check_problem_size
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.quadrature import Quadrature, cell_quadrature, segment_quadrature
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.geometry.partition import Partition, partition_cloud
+from parefg.parallel import owned_rows, petsc_matrix, raise_everywhere
 from parefg.profiling import phase
 
 
@@ -78,10 +73,13 @@ class PointSet:
 
     def evaluate_gradient(self, u: PETSc.Vec) -> np.ndarray:
         """grad u_h at the points, (n_points, 2, 2) with [q, i, j] = d u_i / d x_j.  Collective."""
+        gradients = self.gradients
+        if gradients is None:
+            raise ValueError("this point set has no gradient operator")
         if self._gradient_vec is None:
-            self._gradient_vec = self.gradients.createVecLeft()
+            self._gradient_vec = gradients.createVecLeft()
         out = self._gradient_vec
-        self.gradients.mult(u, out)
+        gradients.mult(u, out)
         return out.getArray().reshape(-1, 2, 2).copy()
 
     def integrate(self, density: np.ndarray, out: PETSc.Vec) -> None:
@@ -140,41 +138,46 @@ def _mass_blocks(gram: np.ndarray) -> np.ndarray:
 
 
 class _Builder:
-    """Collective construction of a Discretization from a scene."""
+    """Collective construction of a Discretization from a scene.
 
-    def __init__(self, comm, scene, budget):
+    The constructor meshes and partitions the node cloud (everything the operators are
+    built on); :meth:`build` evaluates MLS and assembles.
+    """
+
+    def __init__(self, comm, scene, budget: Budget):
         self.comm, self.scene, self.budget = comm, scene, budget
         self.timings = {"mesh": 0.0, "neighbours": 0.0, "mls": 0.0, "assembly": 0.0}
         self.n_contact = 0
-
-    def build(self) -> Discretization:
-        comm, scene = self.comm, self.scene
         with phase(self.timings, "mesh"):
             cloud = build_node_cloud(
-                comm, scene.domain, scene.h, scene.cells, scene.jitter, scene.seed, self.budget
+                comm, scene.domain, scene.h, scene.cells, scene.jitter, scene.seed, budget
             )
-            self.budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
-            cloud, partition = partition_cloud(cloud, comm.size)
-            self.cloud, self.partition = cloud, partition
-            self.n_nodes = len(cloud.coords)
-            self.node_ranges = partition.node_ranges
-            self.dof_ranges = 2 * partition.node_ranges
-            start, stop = partition.node_ranges[comm.rank], partition.node_ranges[comm.rank + 1]
-            self.n_dofs_local = 2 * (stop - start)
+            budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
+            self.cloud, self.partition = partition_cloud(cloud, comm.size)
+        self.n_nodes = len(self.cloud.coords)
+        self.node_ranges = self.partition.node_ranges  # (comm.size + 1,)
+        self.dof_ranges = 2 * self.node_ranges
+        start, stop = self.node_ranges[comm.rank], self.node_ranges[comm.rank + 1]
+        self.node_range = (int(start), int(stop))
+        self.n_dofs_local = 2 * (stop - start)
         self.mls = MLS(
-            cloud.coords,
-            scene.support * cloud.spacing,
+            self.cloud.coords,
+            scene.support * self.cloud.spacing,
             scene.degree,
             scene.weight,
             support_factor=scene.support,
         )
-        self.conditions = []
+        self.conditions: list[np.ndarray] = []  # MLS condition numbers of every point set
 
+    def build(self) -> Discretization:
+        comm, scene, cloud = self.comm, self.scene, self.cloud
         domain_q, domain_shape = self._domain_points()
+        dphi = domain_shape.dphi
+        assert dphi is not None  # evaluated with gradients
         with phase(self.timings, "assembly"):
             n = self.n_nodes
             coupling = Coupling.of(domain_shape, n, domain_q.cell)
-            phi, dphi = domain_shape.phi[:, :, None], domain_shape.dphi
+            phi = domain_shape.phi[:, :, None]
             mass_gram = coupling.gram(phi, phi, scene.rho * domain_q.weights)
             mass_local = coupling.interleaved(_mass_blocks(mass_gram), diagonal_only=True)
             stiffness_gram = coupling.gram(dphi, dphi, domain_q.weights)
@@ -186,24 +189,16 @@ class _Builder:
         boundary, contact, dirichlet_local, pattern_local = self._boundaries()
         nodes = self._node_points()
         with phase(self.timings, "assembly"):
-            owned = {
-                name: owned_rows(comm, local, self.dof_ranges)
-                for name, local in [
-                    ("mass", mass_local),
-                    ("stiffness", stiffness_local),
-                    ("dirichlet", dirichlet_local),
-                ]
-            }
-            mass, stiffness, dirichlet = (
-                self._square(owned[name]) for name in ("mass", "stiffness", "dirichlet")
-            )
+            local = {"mass": mass_local, "stiffness": stiffness_local, "dirichlet": dirichlet_local}
+            owned = {name: owned_rows(comm, rows, self.dof_ranges) for name, rows in local.items()}
+            mass, stiffness, dirichlet = (self._square(owned[name]) for name in local)
             contact_pattern = owned_rows(comm, pattern_local, self.dof_ranges)
         conditions = np.concatenate(self.conditions) if self.conditions else np.ones(1)
         return Discretization(
             comm=comm,
             cloud=cloud,
-            partition=partition,
-            node_range=(start, stop),
+            partition=self.partition,
+            node_range=self.node_range,
             n_nodes=n,
             mass=mass,
             stiffness=stiffness,
@@ -227,14 +222,13 @@ class _Builder:
         with phase(self.timings, "neighbours"):
             neighbours = self.mls.find_neighbours(points)
         with phase(self.timings, "mls"):
+            shape, error = None, None
             try:
                 shape = self.mls.evaluate(points, gradients=gradients, neighbours=neighbours)
-                message = None
-            except MLSError as error:
-                shape, message = None, str(error)
-            messages = [m for m in self.comm.allgather(message) if m]
-            if messages:
-                raise MLSError(messages[0])
+            except MLSError as failure:
+                error = failure
+            raise_everywhere(self.comm, error)
+            assert shape is not None  # no rank failed
             self.conditions.append(shape.condition)
         return shape
 

@@ -1,3 +1,4 @@
-"""What a run writes and watches: HDF5/XDMF results (:mod:`.output`), checkpoints
-(:mod:`.checkpoint`), progress lines and stop requests (:mod:`.monitors`).
+"""What a run writes and watches: the results writer (:mod:`.output`) with its HDF5
+(:mod:`.hdf5`) and XDMF (:mod:`.xdmf`) parts, checkpoints (:mod:`.checkpoint`), progress
+lines and stop requests (:mod:`.monitors`).
 """

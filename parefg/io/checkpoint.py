@@ -25,11 +25,13 @@ import json
 import os
 import stat
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
 
 from parefg.errors import InputError
+from parefg.parallel import call_on_root, gather_rows
 from parefg.timestepping.schemes import State
 
 VECTORS = ("u", "v", "a")
@@ -56,30 +58,19 @@ def scene_fingerprint(params: dict) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-def _gather_rows(comm, rows: np.ndarray, values: np.ndarray, n_rows: int):
-    """Assemble a global (n_rows, ...) array on rank 0 from each rank's rows.  Collective."""
-    pieces = comm.gather((rows, values), root=0)
-    if comm.rank != 0:
-        return None
-    out = np.zeros((n_rows, *values.shape[1:]))
-    for piece_rows, piece_values in pieces:
-        out[piece_rows] = piece_values
-    return out
-
-
 def write_checkpoint(comm, path: Path, sim, state: State, step: int) -> None:
     """Write the loop state after ``step`` to ``path`` (atomically).  Collective."""
     disc = sim.disc
     node_rows = disc.nodes.rows
     arrays = {
-        name: _gather_rows(
+        name: gather_rows(
             comm, node_rows, getattr(state, name).getArray().reshape(-1, 2), disc.n_nodes
         )
         for name in VECTORS
     }
     if sim.law is not None:
-        arrays["slip"] = _gather_rows(comm, disc.contact.rows, sim.law.slip, disc.n_contact)
-    arrays["nodes"] = _gather_rows(comm, node_rows, disc.nodes.points, disc.n_nodes)
+        arrays["slip"] = gather_rows(comm, disc.contact.rows, sim.law.slip, disc.n_contact)
+    arrays["nodes"] = gather_rows(comm, node_rows, disc.nodes.points, disc.n_nodes)
     if comm.rank == 0:
         partial = path.with_name(path.name + ".partial")
         with h5py.File(partial, "w") as handle:
@@ -102,16 +93,8 @@ def read_checkpoint(comm, path: Path, sim) -> tuple[State, int, dict]:
     have been started (``sim.start()``), which sets the shapes to check against.
     """
     disc = sim.disc
-    message, data = None, None
-    nodes = _gather_rows(comm, disc.nodes.rows, disc.nodes.points, disc.n_nodes)
-    if comm.rank == 0:
-        try:
-            data = load_checkpoint(path, sim, nodes)
-        except InputError as error:
-            message = str(error)
-    message, data = comm.bcast((message, data), root=0)
-    if message:
-        raise InputError(message)
+    nodes = gather_rows(comm, disc.nodes.rows, disc.nodes.points, disc.n_nodes)
+    data = call_on_root(comm, load_checkpoint, path, sim, nodes)
     vectors = {}
     for name in VECTORS:
         vec = disc.create_vec()
@@ -187,7 +170,7 @@ def _check_format(where: str, handle) -> None:
 
 def _read_attributes(where: str, handle) -> dict:
     """step (an integer), params and history (JSON objects)."""
-    attrs = {}
+    attrs: dict[str, Any] = {}
     try:
         step = handle.attrs["step"]
         params, history = (json.loads(handle.attrs[key]) for key in ("params_json", "history_json"))

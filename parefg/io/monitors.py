@@ -11,6 +11,7 @@ from __future__ import annotations
 import signal
 import threading
 import time
+from typing import Any
 
 from mpi4py import MPI
 
@@ -76,7 +77,7 @@ class StopRequest:
     def __init__(self, comm):
         self.comm = comm
         self.signal = 0  # number of the signal received on this rank, 0 if none
-        self._previous: dict[int, object] = {}
+        self._previous: dict[int, Any] = {}  # signal number -> handler before ours
 
     def __enter__(self) -> StopRequest:
         if threading.current_thread() is threading.main_thread():

@@ -31,9 +31,9 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.boundary import BoundaryKind
-from parefg.discretization.assembly import owned_rows, petsc_matrix
 from parefg.guards import DataGuard
 from parefg.mechanics.friction import FRICTION_LAWS, PRESSURE_LAWS, coulomb_bound
+from parefg.parallel import owned_rows, petsc_matrix
 
 OPEN, STICK, SLIP = 0, 1, 2
 

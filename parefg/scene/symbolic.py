@@ -206,7 +206,7 @@ def _checked(number) -> mpmath.mpf:
     return number
 
 
-def _true_value(expr, point, low=None) -> mpmath.mpf | None:
+def _true_value(expr, point, low=None) -> mpmath.mpf:
     """expr at ``point`` if the 30- and 60-digit values agree, 0 if the value is round-off.
 
     Raises _Undecided.  ``low``: the 30-digit value, when already known.

@@ -15,10 +15,10 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.boundary import BoundaryKind
-from parefg.discretization.assembly import petsc_matrix, with_pattern
 from parefg.errors import SolverError
 from parefg.guards import DataGuard, RigidModes, all_finite, require_constraints
 from parefg.mechanics.contact import ContactLaw
+from parefg.parallel import petsc_matrix, with_pattern
 from parefg.profiling import phase
 from parefg.timestepping.coulomb import CoulombStepSolver
 from parefg.timestepping.schemes import State, make_scheme, relative_errors

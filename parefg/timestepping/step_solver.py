@@ -37,8 +37,8 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from parefg.discretization.assembly import add_owned_rows
 from parefg.errors import InputError, SolverError
+from parefg.parallel import add_owned_rows
 
 Reason = PETSc.SNES.ConvergedReason
 

@@ -80,8 +80,10 @@ def main() -> int:
     for name, (lines, doc) in modules.items():
         indent = "  " * name.count(".")
         print(f"{indent}{name.split('.')[-1]:<{28 - len(indent)}} {lines:5d}  {doc[:80]}")
-    print(f"\n{len(modules)} modules, {sum(n for n, _ in modules.values())} lines;"
-          f" over 400 lines: {[m for m, (n, _) in modules.items() if n > 400]}")
+    print(
+        f"\n{len(modules)} modules, {sum(n for n, _ in modules.values())} lines;"
+        f" over 400 lines: {[m for m, (n, _) in modules.items() if n > 400]}"
+    )
     print(f"\nlongest functions (of {len(functions)}):")
     for fname, length, where in sorted(functions, key=lambda f: -f[1])[: args.longest]:
         print(f"  {length:4d}  {fname:<32} {where}")
@@ -108,7 +110,7 @@ def find_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
             if target not in graph or target == node:
                 continue
             if state.get(target) == "open":
-                cycles.append(stack[stack.index(target):] + [target])
+                cycles.append(stack[stack.index(target) :] + [target])
             elif target not in state:
                 visit(target, stack + [target])
         state[node] = "done"

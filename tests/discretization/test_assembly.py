@@ -12,9 +12,10 @@ import pytest
 import scipy.sparse as sp
 from mpi4py import MPI
 
-from parefg.discretization.assembly import Coupling, owned_rows
+from parefg.discretization.assembly import Coupling
 from parefg.discretization.mls import MLS
 from parefg.discretization.operators import build_discretization
+from parefg.parallel import owned_rows
 from parefg.scene.loader import load_scene
 
 TOLERANCE = 1e-13

@@ -18,7 +18,8 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.io.output import ResultWriter, _PointRows
+from parefg.io.hdf5 import PointRows as _PointRows
+from parefg.io.output import ResultWriter
 
 # this module is also imported by a child process (CRASHING_RUN), without conftest
 REPO = Path(__file__).resolve().parents[2]

@@ -1,0 +1,225 @@
+"""How large a run will be, counted before anything is built (SPEC 9).
+
+From the validated scene alone (microseconds of arithmetic, no gmsh) :func:`estimate_scene`
+predicts the size of a run: the node count N from the domain's area A and perimeter P
+at spacing h, the background cells, the quadrature points, the MLS neighbours per point
+(the nodes within s c_I of a point: about pi s^2 per point at unit node density, capped by
+N) and from those the peak resident memory of the largest rank::
+
+    memory = base + (per-rank share of)  point data  n_points * n_max * bytes per slot
+                                       + Gram pairs   n_cells * G^2    (nodes of a cell's points)
+                                       + matrices     nnz(A) = 4 N R   (R = nodes within 2 s c)
+                                       + Cholesky     nnz(L) = nnz(A) * fill(2 N)
+
+The coefficients are measured (``scripts/bench/calibrate_budget.py``: the estimate is within a
+factor 2 of summary.json's ``peak_rss_mb``); the direct factorization's fill is a rough
+fit of MUMPS's nested-dissection fill on these stencils, growing like log N.
+:func:`cloud_size` counts the same from an actual node cloud.  Not collective.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+# Unstructured gmsh meshes at target size h (measured on polygons, z and .geo domains):
+# N = 1.16 A / h^2 + 0.5 P / h (1.16 ~ 2 / sqrt 3: equilateral triangles).
+UNSTRUCTURED_DENSITY = 1.16
+# Local geometry in units of the node spacing c_I: (nodes per c^2, cell area / c^2), the
+# medians measured on gmsh's unstructured meshes, graded ones included (cloud_size).
+UNSTRUCTURED_LOCAL = {"quad": (1.03, 0.97), "tri": (1.155, 0.43)}
+# Mean incident edge of a node of a structured triangle grid: (4 + 2 sqrt 2) / 6 steps.
+TRIANGLE_GRID_SPACING = (4 + 2 * math.sqrt(2)) / 6
+# n_max / (mean neighbours): padded neighbour lists are as long as the fullest point's.
+PADDING = {"grid": 1.15, "unstructured": 1.4}
+
+# Measured bytes (scripts/bench/calibrate_budget.py): python, numpy, PETSc, MPI, numba, gmsh
+BASE_BYTES = 260e6
+NODE_BYTES = 400  # node cloud and partition, held by every rank; gmsh's mesh on rank 0
+GRADIENT_SLOT_BYTES = 170  # per (point, neighbour) with gradients: ShapeValues, operators
+VALUE_SLOT_BYTES = 60  # per (point, neighbour), values only (boundary points)
+PAIR_BYTES = 28  # per coupled node pair of one cell (Gram assembly, transient)
+ENTRY_BYTES = 40  # per nonzero of the DOF matrices (M, K, G_D, A_const; scipy and PETSc)
+FACTOR_BYTES = 16  # per nonzero of the Cholesky factors (A_const and mass, MUMPS)
+
+
+@dataclass(frozen=True)
+class Size:
+    """What a run builds, counted before it is built (floats: they may be astronomically large).
+
+    Attributes
+    ----------
+    n_nodes, n_cells : float
+        EFG nodes N and background cells.
+    n_domain_points, n_boundary_points : float
+        Gauss points in the cells and on the boundary segments.
+    neighbours : float
+        Padded neighbour-list length n_max (nodes whose support covers a point).
+    cell_nodes : float
+        Nodes touching one cell's Gauss points (the Gram assembly pairs them all).
+    reach : float
+        Nodes coupled to one node in the stiffness matrix (supports that overlap).
+    """
+
+    n_nodes: float
+    n_cells: float
+    n_domain_points: float
+    n_boundary_points: float
+    neighbours: float
+    cell_nodes: float
+    reach: float
+
+    @property
+    def n_dofs(self) -> float:
+        return 2 * self.n_nodes
+
+    @property
+    def matrix_entries(self) -> float:
+        """Nonzeros of one DOF matrix (2 x 2 blocks of every coupled node pair)."""
+        return 4 * self.n_nodes * self.reach
+
+    @property
+    def factor_entries(self) -> float:
+        """Nonzeros of a Cholesky factor: nnz(A) times a nested-dissection fill ~ log N."""
+        n_dofs = self.n_dofs
+        fill = max(1.0, 0.6 * (math.log2(max(n_dofs, 1.0)) - 7))
+        return min(self.matrix_entries * fill, n_dofs * (n_dofs + 1) / 2)
+
+
+def memory_per_rank(size: Size, n_ranks: int) -> float:
+    """Estimated peak resident bytes of the largest of ``n_ranks`` ranks running ``size``."""
+    gradient_points = size.n_domain_points + size.n_nodes
+    shared = (
+        GRADIENT_SLOT_BYTES * gradient_points * size.neighbours
+        + VALUE_SLOT_BYTES * size.n_boundary_points * size.neighbours
+        + PAIR_BYTES * size.n_cells * size.cell_nodes * size.cell_nodes
+        + ENTRY_BYTES * size.matrix_entries
+        + FACTOR_BYTES * size.factor_entries
+    )
+    return BASE_BYTES + NODE_BYTES * size.n_nodes + shared / n_ranks
+
+
+# --------------------------------------------------------------------------- sizes
+
+
+def _steps(length: float, h: float) -> float:
+    """Cells of a transfinite edge: ceil(L / h), as geometry._build_box makes them."""
+    ratio = length / h
+    return ratio if ratio > 1e15 else max(1, math.ceil(ratio - 1e-9))
+
+
+def _polygon_extent(vertices) -> tuple[float, float]:
+    """(area, perimeter) of a closed polygon (shoelace formula; vertices as pairs)."""
+    points = [(float(x), float(y)) for x, y in vertices]
+    edges = list(zip(points, points[1:] + points[:1], strict=True))
+    area = 0.5 * sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in edges)
+    perimeter = sum(math.hypot(x1 - x0, y1 - y0) for (x0, y0), (x1, y1) in edges)
+    return abs(area), perimeter
+
+
+def _padding(scene) -> float:
+    """n_max / mean neighbours: structured grids for the box shapes (Shape.box)."""
+    from parefg.geometry.shapes import SHAPES
+
+    structured = SHAPES[scene.domain["shape"]].box is not None
+    return PADDING["grid" if structured else "unstructured"]
+
+
+def _size(scene, n_nodes, n_cells, n_segments, kappa: float, alpha: float) -> Size:
+    """The size of a mesh given its counts and its local geometry around a node.
+
+    In units of the local spacing c (supports have radius s c): ``kappa`` nodes per c^2,
+    cells of area ``alpha`` c^2.  A point has kappa pi s^2 neighbours on average; a cell's
+    points touch kappa |cell + disc of radius s c| nodes (Steiner: area + perimeter s c +
+    pi s^2 c^2, perimeter ~ 4.5 sqrt(area)); a node couples with those within 2 s c.
+    """
+    s, q = scene.support, scene.quadrature
+    mean = kappa * math.pi * s * s
+    cell = kappa * (alpha + 4.5 * math.sqrt(alpha) * s + math.pi * s * s)
+    return Size(
+        n_nodes=n_nodes,
+        n_cells=n_cells,
+        n_domain_points=n_cells * q * q,
+        n_boundary_points=n_segments * q,
+        neighbours=min(n_nodes, _padding(scene) * mean + 1),
+        cell_nodes=min(n_nodes, cell + 1),
+        reach=min(n_nodes, 4 * mean + 1),
+    )
+
+
+def grid_size(scene, lx: float, ly: float) -> Size:
+    """Size of the transfinite grid of a rectangle lx x ly (shapes "square", "rectangle")."""
+    n_x, n_y = _steps(lx, scene.h), _steps(ly, scene.h)
+    hx, hy = lx / n_x, ly / n_y
+    triangles = scene.cells == "tri"
+    spacing = 0.5 * (hx + hy) * (TRIANGLE_GRID_SPACING if triangles else 1.0)
+    kappa = (spacing / hx) * (spacing / hy)  # ratios: h = 1e-300 must not underflow
+    alpha = 1 / kappa / (2 if triangles else 1)
+    n_cells = n_x * n_y * (2 if triangles else 1)
+    n_nodes = (n_x + 1) * (n_y + 1)
+    return _size(scene, n_nodes, n_cells, 2 * (n_x + n_y), kappa, alpha)
+
+
+def unstructured_size(scene, area: float, perimeter: float, h: float | None = None) -> Size:
+    """Size of gmsh's Frontal-Delaunay mesh (recombined for quads) of a domain A, P at h.
+
+    ``h`` defaults to the scene's (another size: :meth:`Budget.size_floor`).
+    """
+    h = scene.h if h is None else h
+    boundary_nodes = perimeter / h
+    n_nodes = UNSTRUCTURED_DENSITY * area / h / h + 0.5 * boundary_nodes + 3
+    # Euler: 2 N - B - 2 triangles with B boundary nodes; about half as many quads
+    n_cells = (
+        n_nodes - 0.5 * boundary_nodes if scene.cells == "quad" else 2 * n_nodes - boundary_nodes
+    )
+    return _size(scene, n_nodes, n_cells, boundary_nodes + 3, *UNSTRUCTURED_LOCAL[scene.cells])
+
+
+def estimate_scene(scene) -> Size | None:
+    """The size of ``scene``'s run from its domain and discretization; None for a .geo file.
+
+    A .geo domain's area is known only once gmsh has read the file
+    (:meth:`Budget.check_extent`).  Not collective; pure arithmetic on the scene.
+    """
+    from parefg.geometry.shapes import SHAPES
+
+    shape = SHAPES[scene.domain["shape"]]
+    if shape.box is not None:  # a structured grid
+        _, (lx, ly) = shape.box(scene.domain)
+        return grid_size(scene, float(lx), float(ly))
+    if shape.outline is not None:
+        return unstructured_size(scene, *_polygon_extent(shape.outline(scene.domain)[0]))
+    return None
+
+
+def cloud_size(scene, cloud) -> Size:
+    """The size of ``scene``'s run on an actual node cloud: its counts and local geometry.
+
+    kappa and alpha (see :func:`_size`) are medians over nodes and cells, so that graded
+    meshes (fine and coarse parts) and boundary nodes do not skew them.
+    """
+    import numpy as np
+
+    from parefg.geometry.cloud import signed_areas
+
+    dual_area = np.zeros(cloud.n_nodes)  # (n_nodes,) each cell's area shared by its corners
+    alphas = [np.empty(0)]
+    for cells in (cloud.quads, cloud.triangles):
+        area = np.abs(signed_areas(cloud.coords, cells))  # (n_cells,)
+        np.add.at(dual_area, cells.ravel(), np.repeat(area / cells.shape[1], cells.shape[1]))
+        alphas.append(area / cloud.spacing[cells].mean(axis=1) ** 2)
+    used = dual_area > 0
+    kappa = float(np.median(cloud.spacing[used] ** 2 / dual_area[used])) if used.any() else 1.0
+    alpha = np.concatenate(alphas)
+    n_cells = len(alpha)
+    return _size(
+        scene,
+        float(cloud.n_nodes),
+        float(n_cells),
+        float(len(cloud.segments)),
+        kappa,
+        float(np.median(alpha)) if n_cells else 1.0,
+    )
+
+
+# --------------------------------------------------------------------------- the limit

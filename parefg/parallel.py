@@ -1,0 +1,270 @@
+"""The parallel layer: collectives, failures decided together, PETSc construction helpers.
+
+Every function takes the communicator first and says whether it is collective.  Two rules
+of SPEC 6 live here so that no other module writes them by hand:
+
+* a failure found on one rank is raised on every rank (:func:`raise_everywhere`,
+  :func:`call_on_root`), decided through one collective before the next one, so no rank
+  waits in a collective that another rank skipped;
+* a rank that leaves a block early waits a bounded time for the others and aborts the job
+  otherwise (:func:`wait_for_all`), so a run never hangs under mpirun.
+
+The sparse helpers move this rank's contributions to the rows their owners hold
+(:func:`owned_rows`) and build PETSc matrices with exact preallocation from them.  Rank r
+owns the contiguous rows ``row_ranges[r]:row_ranges[r + 1]``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any, TypeVar
+
+import numpy as np
+import scipy.sparse as sp
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from parefg.errors import InputError
+
+T = TypeVar("T")
+POLL_SECONDS = 0.001  # how often a waiting rank tests its non-blocking barrier
+
+
+# -- failures decided together ---------------------------------------------------------
+def raise_everywhere(comm, error: Exception | None, *, root: int | None = None) -> None:
+    """Raise on every rank the failure one rank found; return if there is none.  Collective.
+
+    Parameters
+    ----------
+    error : Exception or None
+        What this rank found (None: nothing).  Its class must be constructible from its
+        message alone (``InputError(message)``); only the class and message travel.
+    root : int, optional
+        None: every rank's ``error`` counts (one allgather) and the first failing rank's
+        is raised.  A rank number: only that rank's counts (one bcast), for verdicts that
+        one rank reaches for all (files it read, round-off it judged).
+
+    A failing rank raises its own exception object (keeping its traceback); the others
+    raise a new one of the same class and message.
+    """
+    local = None if error is None else (type(error), str(error))
+    if root is None:
+        found = next((f for f in comm.allgather(local) if f is not None), None)
+    else:
+        found = comm.bcast(local, root=root)
+    if found is None:
+        return
+    kind, message = found
+    if error is not None and type(error) is kind and str(error) == message:
+        raise error
+    raise kind(message)
+
+
+def raise_unless_everywhere(comm, ok: bool, error: Exception) -> None:
+    """Raise ``error`` on every rank unless ``ok`` holds on every rank.  Collective.
+
+    One allreduce; for a check each rank makes on its own data.
+    """
+    if not comm.allreduce(bool(ok), op=MPI.LAND):
+        raise error
+
+
+def same_everywhere(comm, value) -> bool:
+    """Whether ``value`` (compared with ==) is the same on every rank.  Collective."""
+    values = comm.allgather(value)
+    return all(other == values[0] for other in values)
+
+
+def call_on_root(
+    comm,
+    task: Callable[..., T],
+    *args,
+    expected: tuple[type[Exception], ...] = (InputError,),
+    root: int = 0,
+) -> T:
+    """Run ``task(*args)`` on ``root`` only; return its result on every rank.  Collective.
+
+    For work only one rank may do (create a directory, read a file): an ``expected``
+    exception raised by the task is raised on every rank (:func:`raise_everywhere`); any
+    other exception is a defect, raised as it is on ``root`` and as RuntimeError naming
+    it on the other ranks, so every rank ends.  The result is broadcast (pickled).
+    """
+    result, defect = None, None
+    failure: tuple[Any, str] | None = None  # (exception class or "internal", message)
+    if comm.rank == root:
+        try:
+            result = task(*args)
+        except expected as error:
+            failure = (type(error), str(error))
+        except Exception as error:  # a defect: still end every rank, not only the root
+            failure, defect = ("internal", f"{type(error).__name__}: {error}"), error
+    failure, result = comm.bcast((failure, result), root=root)
+    if failure is None:
+        return result
+    kind, message = failure
+    if defect is not None:
+        raise defect
+    if kind == "internal":
+        raise RuntimeError(f"{task.__name__} failed on rank {root}: {message}")
+    raise kind(message)
+
+
+def wait_for_all(comm, patience: float | None, abort_code: int) -> None:
+    """Wait until every rank arrives; abort the job after ``patience`` seconds.  Collective.
+
+    A non-blocking barrier, tested every POLL_SECONDS: a rank that failed waits for the
+    others to leave the block they were in, and if they are stuck in a collective it left
+    (``patience`` None: wait as long as it takes) ``comm.Abort(abort_code)`` ends the job.
+    """
+    if comm.size == 1:
+        return
+    request = comm.Ibarrier()
+    deadline = None if patience is None else time.monotonic() + patience
+    while not request.Test():
+        if deadline is not None and time.monotonic() > deadline:
+            comm.Abort(abort_code)
+        time.sleep(POLL_SECONDS)
+
+
+# -- rows of distributed arrays ---------------------------------------------------------
+def gather_rows(comm, rows: np.ndarray, values: np.ndarray, n_rows: int, root: int = 0):
+    """A global (n_rows, ...) float array on ``root`` from each rank's rows; None elsewhere.
+
+    ``rows`` (n_local,) are this rank's global rows of ``values`` (n_local, ...); over all
+    ranks a permutation of 0..n_rows-1.  Collective.
+    """
+    pieces = comm.gather((rows, values), root=root)
+    if comm.rank != root:
+        return None
+    out = np.zeros((n_rows, *values.shape[1:]))
+    for piece_rows, piece_values in pieces:
+        out[piece_rows] = piece_values
+    return out
+
+
+def _alltoallv(comm, send: np.ndarray, send_counts: np.ndarray) -> np.ndarray:
+    """Exchange a 1-D array in blocks: block r of ``send`` goes to rank r.  Collective."""
+    recv_counts = np.empty(comm.size, dtype=np.int64)
+    comm.Alltoall(send_counts.astype(np.int64), recv_counts)
+    recv = np.empty(int(recv_counts.sum()), dtype=send.dtype)
+    send_displs = np.concatenate([[0], np.cumsum(send_counts)[:-1]])
+    recv_displs = np.concatenate([[0], np.cumsum(recv_counts)[:-1]])
+    mpi_type = MPI._typedict[send.dtype.char]
+    comm.Alltoallv(
+        [send, (send_counts, send_displs), mpi_type], [recv, (recv_counts, recv_displs), mpi_type]
+    )
+    return recv
+
+
+def owned_rows(comm, local: sp.spmatrix, row_ranges: np.ndarray) -> sp.csr_matrix:
+    """Sum every rank's contributions into the rows each rank owns.  Collective.
+
+    Parameters
+    ----------
+    local : (n_rows, n_cols) sparse matrix with global row and column indices holding this
+        rank's contributions (rows anywhere).
+    row_ranges : (comm.size + 1,) rank r owns rows row_ranges[r]:row_ranges[r + 1].
+
+    Returns
+    -------
+    (n_owned_rows, n_cols) CSR matrix of the summed owned rows, duplicates added, explicit
+    zeros kept (they carry sparsity patterns reserved for later values).
+    """
+    local = sp.csr_matrix(local)
+    local.sum_duplicates()  # canonical CSR: sorted columns, duplicates added, zeros kept
+    start, stop = row_ranges[comm.rank], row_ranges[comm.rank + 1]
+    if comm.size == 1:
+        return local
+    # CSR rows come grouped by owner already: rank r's entries are one contiguous slice
+    counts = np.diff(local.indptr[row_ranges])  # (comm.size,)
+    entry_rows = np.repeat(np.arange(local.shape[0]), np.diff(local.indptr))  # (nnz,)
+    rows = _alltoallv(comm, entry_rows.astype(np.int64), counts)
+    cols = _alltoallv(comm, local.indices.astype(np.int64), counts)
+    data = _alltoallv(comm, local.data.astype(np.float64), counts)
+    owned = sp.coo_matrix((data, (rows - start, cols)), shape=(stop - start, local.shape[1]))
+    return owned.tocsr()  # sums duplicates, keeps explicit zeros
+
+
+def with_pattern(matrix: sp.csr_matrix, pattern: sp.csr_matrix) -> sp.csr_matrix:
+    """``matrix`` with explicit zeros added wherever ``pattern`` has an entry.  Local.
+
+    scipy's sparse sum drops zeros; going through COO keeps them, which reserves the
+    Gamma_C coupling in A_const so that contact terms never change the PETSc pattern.
+    """
+    if pattern.nnz == 0:
+        return sp.csr_matrix(matrix)
+    a, p = matrix.tocoo(), pattern.tocoo()
+    rows = np.concatenate([a.row, p.row])
+    cols = np.concatenate([a.col, p.col])
+    data = np.concatenate([a.data, np.zeros(p.nnz)])
+    return sp.coo_matrix((data, (rows, cols)), shape=matrix.shape).tocsr()
+
+
+# -- PETSc construction -----------------------------------------------------------------
+def _csr_arrays(matrix: sp.csr_matrix):
+    matrix.sort_indices()
+    return (
+        matrix.indptr.astype(PETSc.IntType),
+        matrix.indices.astype(PETSc.IntType),
+        matrix.data.astype(PETSc.ScalarType),
+    )
+
+
+def petsc_matrix(comm, owned: sp.csr_matrix, n_cols_local: int, n_cols: int, block_size: int = 1):
+    """PETSc AIJ matrix from this rank's owned rows (global columns).  Collective.
+
+    The CSR arrays give the exact preallocation; inserting outside the pattern later is
+    an error (no mallocs during value updates within the same pattern).
+    """
+    n_rows_local = owned.shape[0]
+    matrix = PETSc.Mat().createAIJ(
+        size=((n_rows_local, PETSc.DETERMINE), (n_cols_local, n_cols)),
+        csr=_csr_arrays(owned),
+        bsize=block_size if block_size > 1 else None,
+        comm=comm,
+    )
+    matrix.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+    matrix.assemble()
+    return matrix
+
+
+def add_owned_rows(matrix, owned: sp.csr_matrix) -> None:
+    """Add owned-row values (a pattern subset of ``matrix``) into a PETSc matrix.  Collective."""
+    matrix.setValuesCSR(*_csr_arrays(owned), addv=PETSc.InsertMode.ADD_VALUES)
+    matrix.assemble()
+
+
+@contextmanager
+def default_options(prefix: str, defaults: dict[str, Any]) -> Iterator[list[str]]:
+    """Offer ``defaults`` to the next setFromOptions of an object with options ``prefix``.
+
+    Each default (name without '-' and without the prefix) is put into the global options
+    database as ``prefix + name`` only if nobody set that option (the command line and
+    the scene's [solver] table win), and exactly those entries are deleted on exit,
+    whatever happens: the database is as before afterwards.  For settings petsc4py cannot
+    make on the object itself (petsc4py 3.18 has no SNES.getLineSearch).  Yields the
+    names inserted.  Not collective (every rank does the same).
+    """
+    options = PETSc.Options()
+    inserted = [prefix + name for name in defaults if not options.hasName(prefix + name)]
+    for name in inserted:
+        options.setValue(name, defaults[name.removeprefix(prefix)])
+    try:
+        yield inserted
+    finally:
+        for name in inserted:
+            options.delValue(name)
+
+
+def set_from_options(obj, prefix: str, defaults: dict[str, Any] | None = None) -> None:
+    """Give a PETSc object its options prefix and read its options once.  Collective.
+
+    ``defaults`` (see :func:`default_options`) apply only where no option was given, and
+    only while this object reads them.  An empty ``prefix`` reads the unprefixed options
+    (``-ksp_type``, ``-snes_rtol``): the step solver's, as the README documents them.
+    """
+    obj.setOptionsPrefix(prefix or None)
+    with default_options(prefix, defaults or {}):
+        obj.setFromOptions()
