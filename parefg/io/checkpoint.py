@@ -1,12 +1,12 @@
 """Checkpoint and restart of the time loop.
 
 A checkpoint holds everything the loop needs to continue: the nodal parameters u, v, a,
-the accumulated slip xi at the Gamma_C points, the step number and the last per-step row
-(running sums of dissipation and external work).  Arrays are stored in the global,
-rank-independent order (nodes by their original index, Gamma_C points by their global
-row), so a run may restart on a different number of ranks.  Rank 0 writes the file
-(gathered arrays) to a temporary name and renames it, so a crash during writing never
-destroys the previous checkpoint.
+the accumulated slip xi and the step's normal force C_n at the Gamma_C points, the step
+number and the last per-step row (running sums of dissipation and external work).
+Arrays are stored in the global, rank-independent order (nodes by their original index,
+Gamma_C points by their global row), so a run may restart on a different number of
+ranks.  Rank 0 writes the file (gathered arrays) to a temporary name and renames it, so a
+crash during writing never destroys the previous checkpoint.
 
 A checkpoint is valid only for the scene that wrote it.  It carries the effective scene
 (``params_json``) and its fingerprint, a SHA-256 of the params that determine the
@@ -70,6 +70,10 @@ def write_checkpoint(comm, path: Path, sim, state: State, step: int) -> None:
     }
     if sim.law is not None:
         arrays["slip"] = gather_rows(comm, disc.contact.rows, sim.law.slip, disc.n_contact)
+        # the step's normal force C_n that a_n holds (parefg.mechanics.contact.end_level)
+        arrays["contact_level"] = gather_rows(
+            comm, disc.contact.rows, sim.law.level_pressure, disc.n_contact
+        )
     arrays["nodes"] = gather_rows(comm, node_rows, disc.nodes.points, disc.n_nodes)
     if comm.rank == 0:
         partial = path.with_name(path.name + ".partial")
@@ -103,6 +107,7 @@ def read_checkpoint(comm, path: Path, sim) -> tuple[State, int, dict]:
     if sim.law is not None:
         sim.law.set_time(data["step"] * sim.scheme.k)
         sim.law.slip = data["slip"][disc.contact.rows].copy()
+        sim.law.level_pressure = data["contact_level"][disc.contact.rows].copy()
     return State(**vectors), data["step"], data["history"]
 
 
@@ -112,8 +117,8 @@ def load_checkpoint(path: Path, sim, nodes: np.ndarray) -> dict:
     ``nodes`` (n_nodes, 2) are the scene's node coordinates in the global order: the
     checkpoint's must match (a changed .geo file or gmsh version moves the nodes).
 
-    Returns the arrays (``u``, ``v``, ``a``, ``slip`` with contact), ``step`` and
-    ``history`` (the last table row).  Raises InputError naming what is wrong.
+    Returns the arrays (``u``, ``v``, ``a``, ``slip``, ``contact_level`` with contact),
+    ``step`` and ``history`` (the last table row).  Raises InputError naming what is wrong.
     """
     where = f"--restart {_shown(path)}"
     _check_regular_file(where, path)
@@ -188,9 +193,10 @@ def _read_attributes(where: str, handle) -> dict:
 
 def _expected_shapes(sim) -> dict[str, tuple]:
     """Shape of every dataset a checkpoint for ``sim`` must hold (global order)."""
-    shapes = {name: (sim.disc.n_nodes, 2) for name in (*VECTORS, "nodes")}
+    shapes: dict[str, tuple] = {name: (sim.disc.n_nodes, 2) for name in (*VECTORS, "nodes")}
     if sim.law is not None:
         shapes["slip"] = (sim.disc.n_contact, *np.shape(sim.law.slip)[1:])
+        shapes["contact_level"] = (sim.disc.n_contact,)
     return shapes
 
 

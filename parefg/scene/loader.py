@@ -65,6 +65,7 @@ class Scene:
     beta: float
     gamma: float
     rho_inf: float | None
+    contact_force: str
     n_steps: int
     alpha_dirichlet: float
     alpha_contact: float
@@ -209,7 +210,7 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         lam=lam,
         mu=mu,
         rho=rho,
-        **{key: time[key] for key in ("scheme", "T", "dt", "beta", "gamma")},
+        **{key: time[key] for key in ("scheme", "T", "dt", "beta", "gamma", "contact_force")},
         rho_inf=time.get("rho_inf"),
         n_steps=step_count(where, time),
         **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS},

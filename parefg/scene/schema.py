@@ -70,6 +70,8 @@ PLAIN_NAME_RULE = (
 )
 DEFAULT_SCHEME = next(iter(SCHEMES))
 DEFAULT_RHO_INF = 0.8  # generalized-alpha: mild high-frequency damping, second order
+# [time] contact_force: the penalty contact force of a time step (parefg.mechanics.contact)
+CONTACT_FORCES = ("discrete_gradient", "endpoint")
 OUTPUT_FIELDS = ("u", "v", "a", "von_mises", "contact")
 OUTPUT_FRAMES = 50  # default time series: about this many output steps per run
 # dilation s per MLS degree m; measured: at m = 2, s = 3.2 cuts the H1 error at h = 1/32
@@ -172,6 +174,7 @@ def _read_time(table: Table) -> None:
     beta = table.take("beta", as_number, 0.5, (lambda v: 0 < v <= 1, "must be in (0, 1]"))
     gamma = table.take("gamma", as_number, 0.5, (lambda v: 0.5 <= v <= 1, "must be in [0.5, 1]"))
     _read_rho_inf(table, scheme)
+    table.take("contact_force", one_of(*CONTACT_FORCES), CONTACT_FORCES[0])
     if SCHEMES[scheme] is NewmarkScheme and 2 * beta < gamma:
         raise table.fail(
             "beta",

@@ -55,6 +55,11 @@ class NewmarkScheme:
         """1 / (beta k^2): a_n = (u_n - ut_n) / (beta k^2)."""
         return 1.0 / (self.beta * self.k**2)
 
+    @property
+    def trapezoidal(self) -> bool:
+        """beta = 1/4, gamma = 1/2: an energy without acceleration term (mechanics.contact)."""
+        return abs(self.beta - 0.25) <= 1e-12 and abs(self.gamma - 0.5) <= 1e-12
+
     def predict(self, state: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
         """ut, vt (overwritten) from the previous level ``state``."""
         k, beta, gamma = self.k, self.beta, self.gamma
@@ -132,6 +137,7 @@ class StaticScheme:
     dynamic = False
     mass_coefficient = 0.0
     history: tuple[float, float] | None = None
+    trapezoidal = False
 
     def __init__(self, scene):
         self.k = scene.dt

@@ -1,10 +1,8 @@
 """Solving one time step: minimize J_n(u) = 1/2 u^T A u - b^T u + contact energy (SPEC 4).
 
-Two solvers, chosen by what the scene needs:
+Without Gamma_C a step is one linear solve (:mod:`parefg.timestepping.linear_solver`);
+with it:
 
-* :class:`LinearStepSolver` -- no Gamma_C: J_n is quadratic, each step is one linear
-  solve with A_const, factored (or preconditioned) once for the whole run (an iterative
-  KSP that stops above the step tolerance is refined with the same KSP).
 * :class:`ContactStepSolver` -- semismooth Newton with PETSc SNES (``newtonls``).  The
   Jacobian A_const + contact terms depends only on the active set (closed / sticking
   points), so it is rebuilt -- and refactored -- only when the active set changes; while
@@ -13,8 +11,9 @@ Two solvers, chosen by what the scene needs:
 The VI-aware line search is a line-search *pre-check* on a ``basic`` (full-step) line
 search: given the Newton update Y (PETSc steps x <- x - Y), the pre-check replaces Y by
 t* Y with t* the exact minimizer of the convex, piecewise-quadratic J_n(x - t Y).  Its
-derivative is monotone and piecewise linear in t; t* is found by Newton's method on the
-current linear piece inside a shrinking bracket (exact after finitely many pieces).  So
+derivative is monotone and piecewise linear in t (piecewise smooth where the
+discrete-gradient contact force crosses the obstacle, parefg.mechanics.contact); t* is
+found by Newton's method on the current piece inside a shrinking bracket.  So
 J_n never increases, and every PETSc option (-snes_monitor, -ksp_type, -pc_type, ...)
 still applies; -snes_linesearch_type may be basic (default), bt, cp or nleqerr (see
 :data:`LINE_SEARCHES`).
@@ -39,149 +38,24 @@ from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
 from parefg.parallel import add_owned_rows
+from parefg.timestepping.linear_solver import (
+    DEFAULT_TOLERANCES,
+    INEXACT_HINT,
+    check_factorization,
+    configure_linear_solver,
+    is_exact,
+    ksp_failure,
+    reason_name,
+    step_scale,
+)
 
 Reason = PETSc.SNES.ConvergedReason
 
-
-FACTORIZATIONS = ("lu", "cholesky", "ilu", "icc")
-
-
-def configure_linear_solver(ksp: PETSc.KSP) -> None:
-    """Default: direct Cholesky with MUMPS; any -ksp_/-pc_ option overrides it."""
-    ksp.setType(PETSc.KSP.Type.PREONLY)
-    pc = ksp.getPC()
-    pc.setType(PETSc.PC.Type.CHOLESKY)
-    pc.setFactorSolverType("mumps")
-
-
-def check_factorization(ksp: PETSc.KSP, matrix: PETSc.Mat) -> None:
-    """Fail now, not at the first solve, if the chosen factorization package does not exist.
-
-    PETSc looks the package (-pc_factor_mat_solver_type) up only when the preconditioner
-    is set up, at the first solve.  A 2-row-per-rank matrix of ``matrix``'s type factored
-    with the same preconditioner and package raises the same PETSc error right away, for
-    the cost of nothing.  Call after setFromOptions.  Collective.
-    """
-    pc = ksp.getPC()
-    if pc.getType() not in FACTORIZATIONS:
-        return
-    probe = PETSc.Mat().create(matrix.getComm())
-    probe.setSizes(((2, None), (2, None)), bsize=2)
-    probe.setType(matrix.getType())
-    probe.setPreallocationNNZ(1)
-    start, stop = probe.getOwnershipRange()
-    for row in range(start, stop):
-        probe.setValue(row, row, 1.0)
-    probe.assemble()
-    probe.setOption(PETSc.Mat.Option.SPD, True)
-    trial = PETSc.KSP().create(matrix.getComm())
-    trial.setOperators(probe)
-    trial.setType(PETSc.KSP.Type.PREONLY)
-    trial.getPC().setType(pc.getType())
-    package = pc.getFactorSolverType()
-    if package:
-        trial.getPC().setFactorSolverType(package)
-    try:
-        trial.setUp()
-    finally:
-        trial.destroy()
-        probe.destroy()
-
-
-DEFAULT_TOLERANCES = {"rtol": 1e-10, "atol": 1e-50, "stol": 1e-13, "max_it": 200}
-EXACT_FACTORIZATIONS = ("lu", "cholesky")
 # Measured (square, z, stick, impact): bt, cp and nleqerr give the errors of "basic" to
 # 1e-11.  l2 fits a parabola to |F|^2, which is only piecewise smooth here: on impact it
 # jumps to lambda ~ 2 past a kink at every iteration although lambda = 1 gives |F| ~ 1e-13,
 # and fails at max_it (t = 0.36).  shell has no function; ncglinear belongs to NCG.
 LINE_SEARCHES = ("basic", "bt", "cp", "nleqerr")
-INEXACT_HINT = "inexact linear solve? tighten -ksp_rtol or use the default direct solver"
-
-
-def is_exact(ksp: PETSc.KSP) -> bool:
-    """True when ``ksp`` solves exactly (to round-off): preonly with an LU or Cholesky PC.
-
-    Read from the types in use, so call after setFromOptions.  ILU/ICC, any Krylov method
-    and any other PC are inexact.  Not collective.
-    """
-    return ksp.getType() == PETSc.KSP.Type.PREONLY and ksp.getPC().getType() in (
-        EXACT_FACTORIZATIONS
-    )
-
-
-def step_scale(a_const: PETSc.Mat, b: PETSc.Vec, u0: PETSc.Vec, work: PETSc.Vec) -> float:
-    """max(|b|, |A_const u_0|): the forces of a step without contact.  Collective.
-
-    The step tolerance is rtol times this scale: it does not grow with the contact penalty,
-    unlike |F(u_0)| (alpha times the predictor's penetration), and it is not zero when only
-    the initial guess carries the step (b = 0, u_0 != 0).
-    """
-    a_const.mult(u0, work)
-    return max(b.norm(), work.norm())
-
-
-def _ksp_failure(ksp: PETSc.KSP) -> str:
-    return f"KSP reason {_reason_name(PETSc.KSP.ConvergedReason, ksp.getConvergedReason())}"
-
-
-class LinearStepSolver:
-    """u = A^-1 b with one factorization (or preconditioner) reused by every step.  Collective.
-
-    The answer is checked like a Newton step's: the residual |b - A u| must meet
-    max(atol, rtol * step_scale) with the SNES tolerances (-snes_rtol, -snes_atol,
-    -snes_max_it).  An exact solve meets it at once; an iterative KSP that stopped at its
-    own, looser tolerance is refined (u += A^-1 r, the same KSP) until it does, and a sweep
-    that does not reduce the residual is a failure.
-    """
-
-    def __init__(self, comm, a_const: PETSc.Mat):
-        self.a_const = a_const
-        self.ksp = PETSc.KSP().create(comm)
-        self.ksp.setOperators(a_const)
-        configure_linear_solver(self.ksp)
-        self.ksp.setFromOptions()
-        check_factorization(self.ksp, a_const)
-        self.exact = is_exact(self.ksp)
-        options = PETSc.Options()
-        self.rtol = options.getReal("snes_rtol", DEFAULT_TOLERANCES["rtol"])
-        self.atol = options.getReal("snes_atol", DEFAULT_TOLERANCES["atol"])
-        self.max_sweeps = options.getInt("snes_max_it", DEFAULT_TOLERANCES["max_it"])
-        self._residual, self._correction = a_const.createVecLeft(), a_const.createVecRight()
-        self.factorizations = 0
-        self.jacobian_builds = 0
-        self.residual_norm = self.tolerance = float("nan")  # of the last step
-
-    def solve(self, b: PETSc.Vec, u: PETSc.Vec, t: float) -> tuple[int, int]:
-        """Solve A u = b to the step tolerance from the guess u (overwritten).  Collective."""
-        if self.factorizations == 0:
-            self.ksp.setUp()
-            self.factorizations = 1
-        self.tolerance = max(self.atol, self.rtol * step_scale(self.a_const, b, u, self._residual))
-        self._solve(b, u, t)
-        linear, previous = self.ksp.getIterationNumber(), np.inf
-        for _ in range(self.max_sweeps):
-            residual = self._residual
-            self.a_const.mult(u, residual)
-            residual.aypx(-1.0, b)  # b - A u
-            self.residual_norm = residual.norm()
-            if self.residual_norm <= self.tolerance:
-                return 0, linear
-            if not self.residual_norm < previous:  # also catches NaN
-                break
-            previous = self.residual_norm
-            self._solve(residual, self._correction, t)
-            u.axpy(1.0, self._correction)
-            linear += self.ksp.getIterationNumber()
-        raise SolverError(
-            f"linear solve failed at t = {t:.6g}: residual {self.residual_norm:.3g} above the "
-            f"step tolerance {self.tolerance:.3g} after {linear} linear iterations "
-            f"({INEXACT_HINT})"
-        )
-
-    def _solve(self, rhs: PETSc.Vec, out: PETSc.Vec, t: float) -> None:
-        self.ksp.solve(rhs, out)
-        if self.ksp.getConvergedReason() < 0:
-            raise SolverError(f"linear solve failed at t = {t:.6g}: {_ksp_failure(self.ksp)}")
 
 
 class ContactStepSolver:
@@ -202,7 +76,7 @@ class ContactStepSolver:
         self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
         self.record_energy = False
         self.residual_norm = self.tolerance = float("nan")  # of the last step
-        self._signature = None  # active set the Jacobian was built for
+        self._signature: np.ndarray | None = None  # active set the Jacobian was built for
         # active set of the iterate a Newton step started from (set before any step test)
         self._step_active: np.ndarray = np.zeros(0, dtype=bool)
         self._exact_piece = False
@@ -263,12 +137,16 @@ class ContactStepSolver:
         un, ut = self.law.kinematics(u)
         active = self.law.active_set(un, ut)
         self._step_active = active
-        changed = self._signature is None or not np.array_equal(active, self._signature)
+        # a normal force that is not affine in u (negative piece code) has a Jacobian that
+        # varies with u: rebuild it now, and again at the next call whatever the active set
+        varying = bool(np.any(self.law.piece(un, ut) < 0))
+        built = self._signature
+        changed = varying or built is None or not np.array_equal(active, built)
         if not self.comm.allreduce(changed):
             return  # same matrix: PETSc keeps the factorization
         self.a_const.copy(self.jacobian, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         add_owned_rows(self.jacobian, self.law.jacobian_rows(un, ut))
-        self._signature = active
+        self._signature = None if varying else active
         self.jacobian_builds += 1
 
     # -- the VI-aware line search ---------------------------------------------
@@ -299,7 +177,8 @@ class ContactStepSolver:
             self._exact_piece = False
             y.scale(0.0)
             return True
-        same_piece = np.array_equal(self.law.piece(un, ut), self.law.piece(un + dn, ut + dt))
+        piece = self.law.piece(un, ut)
+        same_piece = np.all(piece >= 0) and np.array_equal(piece, self.law.piece(un + dn, ut + dt))
         self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
         before = self.energy(x) if self.record_energy else 0.0
         if not self._exact_piece:
@@ -386,8 +265,8 @@ class ContactStepSolver:
             return f"{self._failure}, {counts}"
         detail = ""
         if reason == Reason.DIVERGED_LINEAR_SOLVE:
-            detail = f", {_ksp_failure(self.snes.getKSP())}"
-        return f"SNES reason {_reason_name(Reason, reason)}{detail} {counts}"
+            detail = f", {ksp_failure(self.snes.getKSP())}"
+        return f"SNES reason {reason_name(Reason, reason)}{detail} {counts}"
 
 
 def _minimize_monotone(derivative, start, tol: float = 1e-13, max_iter: int = 200) -> float:
@@ -426,9 +305,3 @@ def _check_line_search(options: PETSc.Options) -> None:
             f"-snes_linesearch_type {kind}: not supported with the exact line search; "
             f"allowed: {', '.join(LINE_SEARCHES)}"
         )
-
-
-def _reason_name(reasons, reason: int) -> str:
-    """``NAME (code)`` of a PETSc converged-reason code, from its enum class ``reasons``."""
-    names = {v: k for k, v in vars(reasons).items() if isinstance(v, int)}
-    return f"{names.get(reason, 'UNKNOWN')} ({reason})"

@@ -1044,6 +1044,13 @@ def value_cases() -> list[Case]:
             "only used with friction_law",
         ),
         bad_set("newmark-beta", "5 garbage", "time.beta = 0.1 < gamma/2", "time.beta=0.1", "beta"),
+        bad_set(
+            "contact-force-bogus",
+            "9 schema",
+            "contact_force = midpoint (unknown)",
+            "time.contact_force=midpoint",
+            "contact_force",
+        ),
         Case(
             "static-no-dirichlet",
             "5 garbage",

@@ -17,8 +17,9 @@ from mpi4py import MPI
 
 from parefg.run import prepare
 from parefg.sweep import fitted_rate
+from parefg.timestepping.linear_solver import LinearStepSolver
 from parefg.timestepping.simulation import Simulation
-from parefg.timestepping.step_solver import ContactStepSolver, LinearStepSolver
+from parefg.timestepping.step_solver import ContactStepSolver
 
 COMM = MPI.COMM_WORLD
 

@@ -39,9 +39,11 @@ def test_too_small_support_is_rejected_naming_the_point(tmp_path):
 def test_alpha_1e14_converges(tmp_path):
     """alpha_contact = alpha_friction = 1e14 E/h (h = 1/8, T = 0.1): every step converges.
 
-    Measured: at most 8 Newton iterations per step (25 at 1e12 E/h, T = 0.3), errors
-    L2 1.2e-3, H1 1.5e-2, the same as at the default alpha (the exact solution is in
-    contact, so the contact penalty does not limit the error).
+    Measured: at most 31 Newton iterations in a step with the discrete-gradient contact
+    force (8 with contact_force = "endpoint"; both take 25 at 1e12 E/h, T = 0.3, and the
+    discrete gradient 17 against 22 at 1e10), errors L2 1.2e-3, H1 1.4e-2, the same as at
+    the default alpha (the exact solution is in contact, so the contact penalty does not
+    limit the error).  The bound is on non-convergence, not on speed: SNES stops at 200.
     """
     alpha = 1e14 / 0.125
     overrides = [*COARSE, "time.T=0.1", f"penalty.alpha_contact={alpha!r}",
@@ -50,7 +52,7 @@ def test_alpha_1e14_converges(tmp_path):
     assert done.returncode == 0, done.stderr
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())
     assert summary["steps_done"] == summary["n_steps"] == 2
-    assert summary["max_newton_per_step"] <= 30
+    assert summary["max_newton_per_step"] <= 40
     errors = summary["errors"]
     assert all(math.isfinite(e) for e in errors.values())
     assert errors["l2_rel"] < 3e-3 and errors["h1_rel"] < 3e-2
