@@ -12,15 +12,15 @@ export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
 # Never let pip replace Debian's numpy 1.24 (petsc4py is built against it).
-export PIP_CONSTRAINT := $(CURDIR)/scripts/constraints.txt
+export PIP_CONSTRAINT := $(CURDIR)/scripts/setup/constraints.txt
 MPIRUN    := mpirun --timeout 1500 -n 2
 
 .PHONY: setup demo test lint clean
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/setup.sh
-	bash scripts/setup.sh $(DEB_PKGS)
+$(STAMP): pyproject.toml scripts/setup/setup.sh
+	bash scripts/setup/setup.sh $(DEB_PKGS)
 	@touch $@
 
 demo: setup

@@ -7,6 +7,7 @@ import os
 import resource
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from parefg.io.output import ResultWriter
 from parefg.parallel import call_on_root
 from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
 from parefg.profiling import factorization_stats, phase, start_logging
+from parefg.scene.loader import load_scene
 from parefg.timestepping.loop import Callback, Observer, time_loop
 from parefg.timestepping.simulation import Simulation
 
@@ -149,6 +151,22 @@ def _writer(comm, sim: Simulation, out_dir: Path, metadata: dict) -> ResultWrite
         n_contact=disc.n_contact,
         metadata=metadata,
     )
+
+
+def prepare(
+    comm, source: str, overrides: Sequence[str] = (), keep_history: bool = True
+) -> Simulation:
+    """Load and discretize a scene and set up its Simulation, to step in-process.  Collective.
+
+    ``source`` and ``overrides`` are those of :func:`~parefg.scene.loader.load_scene`; the
+    scene and its discretization are ``sim.scene`` and ``sim.disc``.  The problem size is
+    checked against the machine first (InputError on every rank).  Nothing is written and
+    no step is taken: ``state = sim.start()``, then ``state = sim.step(state, n)`` for
+    n = 1 .. ``sim.scene.n_steps``.  ``keep_history`` False keeps only the last row of
+    ``sim.history`` (long runs).  :func:`run_scene` is the whole run with its output.
+    """
+    scene = load_scene(source, list(overrides))
+    return Simulation(comm, scene, build_discretization(comm, scene), keep_history=keep_history)
 
 
 def run_scene(

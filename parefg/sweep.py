@@ -48,7 +48,31 @@ def run_sweep(
     """Run every case of the grid; return the rows.  Collective.
 
     Every case is validated and its size checked against ``max_memory`` (GB per machine;
-    default: its available memory) before any case runs.
+    default: its available memory) before any case runs.  Rank 0 then writes sweep.csv and
+    error_vs_time.png and prints the rate table.
+    """
+    rows, out_dir = run_cases(comm, scene_source, vary, sets, out, max_memory)
+    if comm.rank == 0:
+        write_csv(out_dir / "sweep.csv", rows)
+        _plot(out_dir / "error_vs_time.png", rows)
+        print(rate_table(rows, [key for key, _ in parse_axes(vary)]))
+        print(f"sweep: {out_dir}/sweep.csv, error_vs_time.png")
+    return rows
+
+
+def run_cases(
+    comm,
+    scene_source: str,
+    vary: list[str],
+    sets: list[str],
+    out: str | None,
+    max_memory: float | None = None,
+    progress: bool = True,
+) -> tuple[list[dict], Path]:
+    """Validate every case of the grid, then run them into OUT/caseNNN.  Collective.
+
+    Returns the rows (one dict per case, in the order of the grid) and the output directory.
+    With ``progress``, rank 0 prints one line per finished case.
     """
     axes = parse_axes(vary)
     cases = list(itertools.product(*[values for _, values in axes]))
@@ -61,21 +85,16 @@ def run_sweep(
     out_dir = plan_output_dir(comm, f"sweep-{scenes[0].name}", out)
     created = create_output_dir(comm, out_dir, out)
     try:
-        rows = _run_cases(comm, axes, cases, scenes, out_dir, max_memory)
+        rows = _run_cases(comm, axes, cases, scenes, out_dir, max_memory, progress)
     except InputError:
         # bad input found by the first case (a PETSc option, the mesh): leave nothing behind
         if comm.rank == 0:
             remove_empty_dirs(created)
         raise
-    if comm.rank == 0:
-        write_csv(out_dir / "sweep.csv", rows)
-        _plot(out_dir / "error_vs_time.png", rows)
-        print(rate_table(rows, [key for key, _ in axes]))
-        print(f"sweep: {out_dir}/sweep.csv, error_vs_time.png")
-    return rows
+    return rows, out_dir
 
 
-def _run_cases(comm, axes, cases, scenes, out_dir: Path, max_memory) -> list[dict]:
+def _run_cases(comm, axes, cases, scenes, out_dir: Path, max_memory, progress) -> list[dict]:
     """Run the validated cases one after the other into out_dir/caseNNN.  Collective."""
     rows = []
     for i, (case, scene) in enumerate(zip(cases, scenes, strict=True)):
@@ -83,7 +102,7 @@ def _run_cases(comm, axes, cases, scenes, out_dir: Path, max_memory) -> list[dic
         summary = run_scene(comm, scene, out=case_dir, quiet=True, max_memory=max_memory)
         row = _row(axes, case, scene, summary)
         rows.append(row)
-        if comm.rank == 0:
+        if comm.rank == 0 and progress:
             print(f"  case {i + 1}/{len(cases)}: " + _format_row(row), flush=True)
     return rows
 
@@ -126,12 +145,24 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 
 
 def fitted_rate(x, errors) -> float:
-    """Slope of log(error) against log(x) (least squares); nan with fewer than 2 points."""
+    """Observed order of convergence: the least-squares slope of log(errors) against log(x).
+
+    The one rate fit of parefg (the sweep's table, scripts/verify/convergence_tables.py,
+    the verification tests).  Every point counts: a zero, negative or non-finite error
+    gives nan, so a failed case cannot hide in a fit (callers that mean to skip missing
+    errors drop them first).  nan with fewer than two distinct x.
+    """
     x, errors = np.asarray(x, float), np.asarray(errors, float)
-    ok = np.isfinite(errors) & (errors > 0)
-    if np.count_nonzero(ok) < 2 or np.ptp(x[ok]) == 0:
+    if x.size < 2 or np.ptp(x) == 0 or not np.all(np.isfinite(errors) & (errors > 0)):
         return float("nan")
-    return float(np.polyfit(np.log(x[ok]), np.log(errors[ok]), 1)[0])
+    return float(np.polyfit(np.log(x), np.log(errors), 1)[0])
+
+
+def _rate_of_known(x, errors) -> float:
+    """fitted_rate over the cases that have an error (scenes without [exact] have nan)."""
+    x, errors = np.asarray(x, float), np.asarray(errors, float)
+    known = np.isfinite(errors) & (errors > 0)
+    return fitted_rate(x[known], errors[known])
 
 
 def rate_table(rows: list[dict], varied: list[str]) -> str:
@@ -152,8 +183,8 @@ def rate_table(rows: list[dict], varied: list[str]) -> str:
         for group_key, group in groups.items():
             x = [r[column] for r in group]
             label = ", ".join(f"{k}={v}" for k, v in zip(others, group_key, strict=True)) or "all"
-            l2_rate = fitted_rate(x, [r["l2_rel"] for r in group])
-            h1_rate = fitted_rate(x, [r["h1_rel"] for r in group])
+            l2_rate = _rate_of_known(x, [r["l2_rel"] for r in group])
+            h1_rate = _rate_of_known(x, [r["h1_rel"] for r in group])
             lines.append(f"\nrate in {column} ({label}): L2 {l2_rate:.2f}, H1 {h1_rate:.2f}")
     return "\n".join(lines)
 

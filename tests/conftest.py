@@ -4,6 +4,13 @@ The suite runs twice: serially and under ``mpirun -n 2``.  Every test must
 reach the same collective calls on every rank.  Tests that start their own MPI
 jobs (CLI runs, 1-rank vs 2-rank comparisons) are marked ``serial_only`` and
 skipped inside an MPI run, where nested mpirun is not possible.
+
+Layout: one folder per subpackage of parefg (scene/, geometry/, discretization/,
+mechanics/, timestepping/, io/), cli/ for the command line and its faults,
+verification/ for rates and balances against exact solutions, parallel/ for
+1 rank == 2 ranks.  The folders have no ``__init__.py``: pytest puts this folder on
+``sys.path`` (so ``from conftest import ...`` works everywhere) and imports each
+test module by its basename, which must therefore be unique across the folders.
 """
 
 import os
@@ -51,3 +58,18 @@ def run_parefg(args, ranks=1, timeout=600, cwd=None):
     return subprocess.run(
         cmd, capture_output=True, text=True, timeout=timeout, env=mpi_env(), cwd=cwd
     )
+
+
+# A quick run: 81 nodes, 4 steps.
+QUICK = ["--set", "time.dt=0.25", "--set", "discretization.h=0.125"]
+
+
+def assert_bad_input(result, words: list[str]) -> str:
+    """Exit 2, exactly one `parefg: error:` line containing ``words``, no traceback."""
+    assert result.returncode == 2, (result.returncode, result.stderr)
+    assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
+    lines = [line for line in result.stderr.splitlines() if line.startswith("parefg: error:")]
+    assert len(lines) == 1, result.stderr
+    for word in words:
+        assert word in lines[0], (word, lines[0])
+    return lines[0]

@@ -11,7 +11,7 @@ N) and from those the peak resident memory of the largest rank::
                                        + matrices     nnz(A) = 4 N R   (R = nodes within 2 s c)
                                        + Cholesky     nnz(L) = nnz(A) * fill(2 N)
 
-The coefficients are measured (``scripts/calibrate_budget.py``: the estimate is within a
+The coefficients are measured (``scripts/bench/calibrate_budget.py``: the estimate is within a
 factor 2 of summary.json's ``peak_rss_mb``); the direct factorization's fill is a rough
 fit of MUMPS's nested-dissection fill on these stencils, growing like log N.
 :func:`cloud_size` counts the same from an actual node cloud.  Not collective.
@@ -33,7 +33,7 @@ TRIANGLE_GRID_SPACING = (4 + 2 * math.sqrt(2)) / 6
 # n_max / (mean neighbours): padded neighbour lists are as long as the fullest point's.
 PADDING = {"grid": 1.15, "unstructured": 1.4}
 
-# Measured bytes (scripts/calibrate_budget.py): python, numpy, PETSc, MPI, numba, gmsh
+# Measured bytes (scripts/bench/calibrate_budget.py): python, numpy, PETSc, MPI, numba, gmsh
 BASE_BYTES = 260e6
 NODE_BYTES = 400  # node cloud and partition, held by every rank; gmsh's mesh on rank 0
 GRADIENT_SLOT_BYTES = 170  # per (point, neighbour) with gradients: ShapeValues, operators

@@ -9,8 +9,8 @@ Each weight is written in two forms, both here: vectorized numpy functions (the 
 backend of :mod:`parefg.discretization.mls`) and one branch of :func:`weight_pair`, the
 scalar form that :mod:`parefg.discretization.mls_kernels` compiles.  They are not one
 formula evaluated twice because their operation orders differ (4 r^2 against 4 r r), and
-each backend's results must keep their last bits; tests/test_mls.py checks that the two
-forms agree to round-off.
+each backend's results must keep their last bits; tests/discretization/test_mls.py checks
+that the two forms agree to round-off.
 """
 
 from collections.abc import Callable

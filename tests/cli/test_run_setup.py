@@ -1,0 +1,57 @@
+"""In-process set-up and sweeps: ``parefg.run.prepare`` and ``parefg.sweep.run_cases``.
+
+Scene "square" (the unit square) at h = 1/4: 5 x 5 = 25 nodes, 2 DOFs each.  Both
+functions are collective; every test runs serially and under ``mpirun -n 2``.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from parefg.errors import InputError
+from parefg.run import prepare
+from parefg.sweep import run_cases
+
+TINY = ["discretization.h=0.25", "discretization.degree=1", "time.dt=0.25", "time.T=0.5"]
+
+
+def test_prepare_applies_the_overrides(comm):
+    sim = prepare(comm, "square", TINY)
+    assert (sim.scene.h, sim.scene.dt, sim.scene.n_steps) == (0.25, 0.25, 2)
+    assert (sim.disc.n_nodes, sim.disc.n_dofs) == (25, 50)
+    state = sim.start()
+    for n in range(1, sim.scene.n_steps + 1):
+        state = sim.step(state, n)
+    assert len(sim.history) == 3  # t = 0 and both steps
+    assert sim.history[-1]["time"] == pytest.approx(0.5)
+
+
+def test_prepare_keeps_only_the_last_row_when_asked(comm):
+    sim = prepare(comm, "square", TINY, keep_history=False)
+    state = sim.start()
+    for n in range(1, sim.scene.n_steps + 1):
+        state = sim.step(state, n)
+    assert len(sim.history) == 1 and sim.history[0]["time"] == pytest.approx(0.5)
+
+
+def test_prepare_refuses_bad_input_on_every_rank(comm):
+    with pytest.raises(InputError, match="discretization.h"):
+        prepare(comm, "square", ["discretization.h=-1"])
+
+
+def test_run_cases_runs_the_grid_in_order_and_prints_nothing(comm, tmp_path, capsys):
+    out = comm.bcast(str(tmp_path / "sweep") if comm.rank == 0 else None, root=0)
+    vary = ["discretization.h=0.25,0.125"]
+    rows, out_dir = run_cases(comm, "square", vary, TINY[1:], out, progress=False)
+    assert capsys.readouterr().out == ""
+    assert [row["h"] for row in rows] == [0.25, 0.125]
+    assert [row["discretization.h"] for row in rows] == ["0.25", "0.125"]
+    assert [row["n_dofs"] for row in rows] == [50, 162]  # 5 x 5 and 9 x 9 nodes
+    assert all(np.isfinite(row["l2_rel"]) and row["l2_rel"] > 0 for row in rows)
+    assert out_dir == Path(out)
+    if comm.rank == 0:
+        for i, row in enumerate(rows):
+            summary = json.loads((out_dir / f"case{i:03d}" / "summary.json").read_text())
+            assert summary["errors"]["l2_rel"] == row["l2_rel"]

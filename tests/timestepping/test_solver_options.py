@@ -1,0 +1,63 @@
+"""The scalable linear-solver path: rigid-body near-null space and CG + GAMG."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from parefg.run import prepare
+
+
+def _simulation(overrides):
+    comm = MPI.COMM_WORLD
+    return prepare(comm, "square", overrides)
+
+
+def test_rigid_body_modes_are_in_the_kernel_of_the_stiffness():
+    """MLS reproduces linear fields, so K annihilates the 3 rigid modes given to GAMG."""
+    sim = _simulation(["discretization.h=0.125"])
+    modes = sim.a_const.getNearNullSpace().getVecs()
+    assert len(modes) == 3
+    stiffness = sim.disc.stiffness
+    scale = stiffness.norm(PETSc.NormType.INFINITY)
+    for mode in modes:
+        image = stiffness.createVecLeft()
+        stiffness.mult(mode, image)
+        assert image.norm(PETSc.NormType.INFINITY) <= 1e-10 * scale * mode.norm(
+            PETSc.NormType.INFINITY
+        )
+    # and they are not in the kernel of the mass matrix (the modes are not zero)
+    mass_image = sim.disc.mass.createVecLeft()
+    sim.disc.mass.mult(modes[0], mass_image)
+    assert mass_image.norm() > 1e-3
+
+
+@pytest.fixture
+def gamg_options():
+    options = PETSc.Options()
+    values = {"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": "1e-10"}
+    for key, value in values.items():
+        options.setValue(key, value)
+    yield
+    for key in values:
+        options.delValue(key)
+
+
+def _errors(sim):
+    state = sim.start()
+    for n in range(1, sim.scene.n_steps + 1):
+        state = sim.step(state, n)
+    return sim.errors(state.u, sim.scene.T)
+
+
+def test_cg_gamg_reproduces_the_direct_solver(gamg_options):
+    overrides = ["discretization.h=0.0625", "discretization.degree=1", "time.T=0.3"]
+    iterative = _simulation(overrides)
+    errors_iterative = _errors(iterative)
+    assert iterative.solver.snes.getKSP().getPC().getType() == "gamg"
+    PETSc.Options().delValue("pc_type")
+    PETSc.Options().delValue("ksp_type")
+    errors_direct = _errors(_simulation(overrides))
+    for key in ("l2_rel", "h1_rel"):
+        assert errors_iterative[key] == pytest.approx(errors_direct[key], rel=1e-6)
+    assert np.isfinite(errors_iterative["h1_rel"])
