@@ -24,7 +24,7 @@ the last iterate, so once the active set has settled an inner solve costs one Ne
 iteration on the kept factorization.
 
 Why not semismooth Newton on the nonsymmetric system: measured in
-scripts/bench_coulomb.py (prototype with LU and backtracking on |F|; no energy is left for
+scripts/bench/bench_coulomb.py (prototype with LU and backtracking on |F|; no energy is left for
 the exact line search), it needs fewer Newton iterations (84 against 246 on the
 manufactured solution) but one nonsymmetric factorization per iteration (84 against 6
 Cholesky), and it stalled where the sliding block stops, at every mu_f of 0.3 ... 2,

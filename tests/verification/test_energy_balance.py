@@ -4,7 +4,7 @@ kinetic + elastic + penalty-stored + dissipated - external work is conserved by 
 continuous problem.  Discretely, the trapezoidal rule conserves it exactly for linear
 forces, and the discrete-gradient contact force (parefg.mechanics.contact) makes the
 penalty's work exact too, through every touch-down and lift-off: without friction the
-balance holds to the solver tolerance (tests/test_impact_energy.py).  What is left here
+balance holds to the solver tolerance (tests/verification/test_impact_energy.py).  What is left here
 is friction's: the Tresca gate acts from the step after a point touches down
 (parefg.mechanics.friction), an O(dt) lag.  Asserted: drift <= 1e-3 at every dt and
 decreasing with dt (measured: 4.5e-4, 2.3e-4, 1.1e-4 for dt = 0.01, 0.005, 0.0025; the

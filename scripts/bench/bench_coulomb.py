@@ -12,10 +12,10 @@ for
   sparse LU and backtracking on |F| (no energy exists for the exact line search), to the
   same step tolerance.
 
-Scenes: the sliding block and the manufactured solution of tests/test_coulomb.py, and a
+Scenes: the sliding block and the manufactured solution of tests/mechanics/test_coulomb.py, and a
 sweep of the friction coefficient on the block (where the fixed point stops contracting).
 
-    python scripts/bench_coulomb.py [--csv coulomb.csv] [--quick]
+    python scripts/bench/bench_coulomb.py [--csv coulomb.csv] [--quick]
 """
 
 import argparse
@@ -30,7 +30,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from mpi4py import MPI
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "tests" / "mechanics"))
 
 from test_coulomb import MMS, SLIDE  # noqa: E402
 

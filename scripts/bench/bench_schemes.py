@@ -11,7 +11,7 @@ Three tables (printed, and written as CSV to --out):
 3. impact.csv -- the impact scene: E_end / E_0 (stored energy + dissipation) per scheme at
    alpha_contact = 1e3 and the default 1e4 E/h.
 
-Usage: ``python scripts/bench_schemes.py [--out DIR] [--quick]``.  Serial; minutes.
+Usage: ``python scripts/bench/bench_schemes.py [--out DIR] [--quick]``.  Serial; minutes.
 """
 
 from pathlib import Path

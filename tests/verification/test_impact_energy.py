@@ -23,7 +23,7 @@ from parefg.scene.loader import load_scene
 from parefg.timestepping.simulation import Simulation
 
 COLUMNS = ("kinetic_energy", "elastic_energy", "penalty_energy", "dissipated_energy")
-# the bar of scripts/bench_impact.py: L = 1, c = 1, v0 = 0.1, gap 0.05
+# the bar of scripts/bench/bench_impact.py: L = 1, c = 1, v0 = 0.1, gap 0.05
 BAR = [
     "domain.size=[0.4, 1.0]",
     "material.nu=0.0",

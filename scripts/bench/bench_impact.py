@@ -20,7 +20,7 @@ of the step, the scheme before).  Columns:
 A penalty below ~1e3 E / h is too soft to be a rigid wall (the bar sinks into it: longer
 contact, lower pressure); that is the penalty model, not the time integration.
 
-    .venv/bin/python scripts/bench_impact.py [--out results/impact] [--quick]
+    .venv/bin/python scripts/bench/bench_impact.py [--out results/impact] [--quick]
 
 writes impact.csv and impact_energy.png (energy history of several alpha) in --out.
 """
