@@ -250,7 +250,9 @@ BINARY = {
 @st.composite
 def numbers(draw):
     """A literal: a small integer or a float written in Python syntax."""
-    value = draw(st.one_of(st.integers(0, 50), st.floats(0, 10, allow_nan=False)))
+    # no subnormals: 1 / 2.2e-311 overflows a double, which the parser rightly refuses, so
+    # such a literal does not make a *valid* expression (seen once in CI-like runs)
+    value = draw(st.one_of(st.integers(0, 50), st.floats(0, 10, allow_subnormal=False)))
     return repr(value), (lambda x, y, t: value + 0 * x)
 
 
