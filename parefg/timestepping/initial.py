@@ -15,7 +15,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from parefg.errors import SolverError
-from parefg.parallel import petsc_matrix, with_pattern
+from parefg.parallel import petsc_matrix, set_from_options, with_pattern
 from parefg.timestepping.linear_solver import LinearStepSolver, configure_linear_solver
 from parefg.timestepping.schemes import State
 from parefg.timestepping.step_solver import ContactStepSolver
@@ -55,12 +55,11 @@ class InitialState:
     def _mass_solve(self, rhs: PETSc.Vec, out: PETSc.Vec) -> None:
         if self._mass_ksp is None:
             ksp = PETSc.KSP().create(self.comm)
-            ksp.setOptionsPrefix("mass_")
             ksp.setOperators(self.disc.mass)
             # once per run (u_0, v_0 projections and a_0): a direct factorization beats CG
             # on the ill-conditioned MLS mass matrix; -mass_ksp_type/-mass_pc_type override
             configure_linear_solver(ksp)
-            ksp.setFromOptions()
+            set_from_options(ksp, "mass_")
             self._mass_ksp = ksp
         self._mass_ksp.solve(rhs, out)
         if self._mass_ksp.getConvergedReason() < 0:

@@ -37,7 +37,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
-from parefg.parallel import add_owned_rows
+from parefg.parallel import add_owned_rows, set_from_options
 from parefg.timestepping.linear_solver import (
     DEFAULT_TOLERANCES,
     INEXACT_HINT,
@@ -94,18 +94,11 @@ class ContactStepSolver:
         snes.setConvergenceTest(self._converged)
         snes.setTolerances(**DEFAULT_TOLERANCES)
         configure_linear_solver(snes.getKSP())
-        # petsc4py 3.18 has no SNES.getLineSearch: the default goes through the options
-        # database, only while setFromOptions reads it (no leak into later runs)
-        options = PETSc.Options()
-        _check_line_search(options)
-        default_line_search = not options.hasName("snes_linesearch_type")
-        if default_line_search:
-            options.setValue("snes_linesearch_type", "basic")
-        try:
-            snes.setFromOptions()
-        finally:
-            if default_line_search:
-                options.delValue("snes_linesearch_type")
+        _check_line_search(PETSc.Options())
+        # the step's options are the unprefixed ones (-snes_rtol, -ksp_type: the README's);
+        # petsc4py 3.18 has no SNES.getLineSearch, so the default line search is offered
+        # through the options database while this SNES reads it, and removed after
+        set_from_options(snes, "", {"snes_linesearch_type": "basic"})
         check_factorization(snes.getKSP(), self.jacobian)
         return snes
 
