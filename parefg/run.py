@@ -137,22 +137,6 @@ def _uncreatable(path: Path, label: str) -> str | None:
     return None
 
 
-def _writer(comm, sim: Simulation, out_dir: Path, metadata: dict) -> ResultWriter:
-    disc = sim.disc
-    contact = disc.contact
-    return ResultWriter(
-        comm,
-        out_dir,
-        node_coords=disc.nodes.points,
-        node_rows=disc.nodes.rows,
-        n_nodes=disc.n_nodes,
-        contact_coords=np.zeros((0, 2)) if contact is None else contact.points,
-        contact_rows=np.zeros(0, dtype=np.int64) if contact is None else contact.rows,
-        n_contact=disc.n_contact,
-        metadata=metadata,
-    )
-
-
 def prepare(
     comm, source: str, overrides: Sequence[str] = (), keep_history: bool = True
 ) -> Simulation:
@@ -271,10 +255,24 @@ def _start(comm, scene, disc, restart: str | None):
 def _open_writer(comm, sim, out_dir: Path, out: str | None) -> ResultWriter:
     """Create the output directory and the result writer (nothing is left if that fails)."""
     created = create_output_dir(comm, out_dir, out)
-    metadata = {"params": sim.scene.params, "version": __version__, "mpi_ranks": comm.size}
+    disc, contact = sim.disc, sim.disc.contact
     try:
         with phase(sim.timings, "output"):
-            return _writer(comm, sim, out_dir, metadata)
+            return ResultWriter(
+                comm,
+                out_dir,
+                node_coords=disc.nodes.points,
+                node_rows=disc.nodes.rows,
+                n_nodes=disc.n_nodes,
+                contact_coords=np.zeros((0, 2)) if contact is None else contact.points,
+                contact_rows=np.zeros(0, dtype=np.int64) if contact is None else contact.rows,
+                n_contact=disc.n_contact,
+                metadata={
+                    "params": sim.scene.params,
+                    "version": __version__,
+                    "mpi_ranks": comm.size,
+                },
+            )
     except BaseException:
         if comm.rank == 0:
             remove_empty_dirs(created)

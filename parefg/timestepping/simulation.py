@@ -303,7 +303,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         if law is None or not self.scheme.dynamic or law.contact_force == "endpoint":
             return
         un = law.kinematics(new.u)[0]
-        physical = getattr(self.scheme, "trapezoidal", False)
+        physical = self.scheme.trapezoidal
         crossed = self.comm.allreduce(bool(np.any(law.crossing(un))), op=MPI.LOR)
         excess = law.end_level(un, physical)
         if not (physical and crossed):
