@@ -134,9 +134,10 @@ class Coupling:
         ``left`` (n_points, n_max, n_left) and ``right`` (n_points, n_max, n_right) are
         per-slot shape data (phi[..., None] or dphi).  Returns (nnz, n_left, n_right).
         """
+        data = np.zeros((len(self.indices), left.shape[2], right.shape[2]))
         if len(self.pair_local) == 0:
-            return np.zeros((len(self.indices), left.shape[2], right.shape[2]))
-        return kernels.gram_groups(
+            return data
+        kernels.gram_groups(
             np.ascontiguousarray(left, dtype=np.float64),
             np.ascontiguousarray(right, dtype=np.float64),
             np.ascontiguousarray(weights, dtype=np.float64),
@@ -148,9 +149,10 @@ class Coupling:
             self.pair_start,
             self.pair_local,
             self.pair_position,
-            len(self.indices),
+            data,
             np.zeros(self.n_nodes, dtype=np.int64),
         )
+        return data
 
     def interleaved(self, blocks: np.ndarray, diagonal_only: bool = False) -> sp.csr_matrix:
         """(2 n_nodes)^2 CSR with entry (2I + a, 2J + b) = blocks[p, a, b], p = (I, J).
@@ -158,8 +160,16 @@ class Coupling:
         ``diagonal_only`` stores only a = b: kron(G, I_2) for a scalar G given as
         blocks[p, 0, 0] = blocks[p, 1, 1].  Explicit zeros are kept (they are pattern).
         """
-        indptr, indices, data = kernels.interleave_blocks(
-            self.indptr, self.indices, np.ascontiguousarray(blocks, dtype=np.float64), diagonal_only
-        )
-        n_dofs = 2 * self.n_nodes
-        return sp.csr_matrix((data, indices, indptr), shape=(n_dofs, n_dofs))
+        return interleaved(self.indptr, self.indices, blocks, diagonal_only)
+
+
+def interleaved(indptr, indices, blocks: np.ndarray, diagonal_only: bool = False) -> sp.csr_matrix:
+    """(2 n)^2 CSR of the scalar pattern (indptr, indices) with 2 x 2 ``blocks`` per entry.
+
+    See :meth:`Coupling.interleaved`.
+    """
+    out_ptr, out_indices, data = kernels.interleave_blocks(
+        indptr, indices, np.ascontiguousarray(blocks, dtype=np.float64), diagonal_only
+    )
+    n_dofs = 2 * (len(indptr) - 1)
+    return sp.csr_matrix((data, out_indices, out_ptr), shape=(n_dofs, n_dofs))

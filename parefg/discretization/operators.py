@@ -16,15 +16,16 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.boundary import BoundaryKind
-from parefg.discretization.assembly import Coupling, value_operator
+from parefg.discretization.assembly import Coupling, interleaved, value_operator
 from parefg.discretization.budget import Budget, check_problem_size
+from parefg.discretization.domain_assembly import assemble_domain
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients
 from parefg.discretization.quadrature import Quadrature, cell_quadrature, segment_quadrature
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.geometry.partition import Partition, partition_cloud
-from parefg.parallel import owned_rows, petsc_matrix, raise_everywhere
+from parefg.parallel import owned_rows, raise_everywhere
 from parefg.profiling import phase
 
 
@@ -213,22 +214,35 @@ class _Builder:
         )
 
     def _domain(self) -> tuple[PointSet, PETSc.Mat, PETSc.Mat]:
-        """The domain point set, M and K; the domain's shape arrays end with this call."""
-        scene = self.scene
-        quadrature, shape = self._domain_points()
-        dphi = shape.dphi
-        assert dphi is not None  # evaluated with gradients
+        """The domain point set, M and K, from MLS evaluated block by block."""
+        scene, quadrature = self.scene, self._domain_quadrature()
+        operators, error = None, None
+        try:
+            operators = assemble_domain(
+                self.mls, quadrature, scene.rho, lambda name: phase(self.timings, name)
+            )
+        except MLSError as failure:
+            error = failure
+        raise_everywhere(self.comm, error)
+        assert operators is not None  # no rank failed
+        if len(quadrature.points):
+            self.conditions.append(np.array(operators.condition_range))
         with phase(self.timings, "assembly"):
-            coupling = Coupling.of(shape, self.n_nodes, quadrature.cell)
-            phi = shape.phi[:, :, None]
-            gram = coupling.gram(phi, phi, scene.rho * quadrature.weights)
-            mass = self._square(coupling.interleaved(_mass_blocks(gram), diagonal_only=True))
-            gram = coupling.gram(dphi, dphi, quadrature.weights)
-            blocks = _stiffness_blocks(gram, scene.lam, scene.mu)
-            del gram
-            stiffness = self._square(coupling.interleaved(blocks))
-            del blocks, coupling
-            domain = self._point_set(quadrature, shape, gradients=True)
+            pattern = (operators.indptr, operators.indices)
+            blocks = _mass_blocks(operators.mass)
+            mass = self._square(interleaved(*pattern, blocks, diagonal_only=True))
+            blocks = _stiffness_blocks(operators.gradient_gram, scene.lam, scene.mu)
+            operators.gradient_gram = operators.mass = np.zeros(0)
+            stiffness = self._square(interleaved(*pattern, blocks))
+            del blocks
+            csr = (operators.value_indptr, operators.value_indices, operators.value_data)
+            domain = PointSet(
+                points=quadrature.points,
+                weights=quadrature.weights,
+                normals=None,
+                values=_point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes),
+                gradients=PointGradients(self.mls, quadrature.points, keep=False),
+            )
         return domain, mass, stiffness
 
     def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
@@ -246,9 +260,10 @@ class _Builder:
             self.conditions.append(shape.condition)
         return shape
 
-    def _domain_points(self) -> tuple[Quadrature, ShapeValues]:
+    def _domain_quadrature(self) -> Quadrature:
+        """Gauss points of this rank's cells."""
         rank, cloud, part = self.comm.rank, self.cloud, self.partition
-        quadrature = cell_quadrature(
+        return cell_quadrature(
             cloud.coords,
             cloud.quads,
             cloud.triangles,
@@ -256,12 +271,31 @@ class _Builder:
             quad_ids=np.flatnonzero(part.quad_owner == rank),
             triangle_ids=np.flatnonzero(part.triangle_owner == rank),
         )
-        return quadrature, self._shape(quadrature.points, gradients=True)
 
     def _square(self, local: sp.csr_matrix) -> PETSc.Mat:
-        """The PETSc DOF matrix of every rank's ``local`` contributions.  Collective."""
+        """The PETSc DOF matrix of every rank's ``local`` contributions.  Collective.
+
+        As :func:`~parefg.parallel.petsc_matrix`, without copying the CSR arrays first.
+        """
         owned = owned_rows(self.comm, local, self.dof_ranges)
-        return petsc_matrix(self.comm, owned, self.n_dofs_local, 2 * self.n_nodes, block_size=2)
+        del local
+        owned.sort_indices()
+        matrix = PETSc.Mat().createAIJ(
+            size=((self.n_dofs_local, PETSc.DETERMINE), (self.n_dofs_local, 2 * self.n_nodes)),
+            csr=tuple(
+                array.astype(kind, copy=False)
+                for array, kind in zip(
+                    (owned.indptr, owned.indices, owned.data),
+                    (PETSc.IntType, PETSc.IntType, PETSc.ScalarType),
+                    strict=True,
+                )
+            ),
+            bsize=2,
+            comm=self.comm,
+        )
+        matrix.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        matrix.assemble()
+        return matrix
 
     def _point_set(self, quadrature, shape, gradients=False, keep_gradients=False, **extra):
         """The PointSet of ``quadrature``: its value operator, and its gradients if asked.
@@ -269,7 +303,9 @@ class _Builder:
         ``keep_gradients`` keeps the shape gradients once used (the nodes: output steps
         evaluate them again); else they are re-evaluated per use (the domain: error norms).
         """
-        values = _point_operator(self.comm, value_operator(shape, self.n_nodes), self.n_nodes_local)
+        local = value_operator(shape, self.n_nodes)
+        csr = (local.indptr, local.indices, local.data)
+        values = _point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes)
         source = PointGradients(self.mls, quadrature.points, keep=keep_gradients)
         return PointSet(
             points=quadrature.points,
@@ -353,14 +389,24 @@ def scipy_rows(matrix: PETSc.Mat) -> sp.csr_matrix:
     return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, matrix.getSize()[1]))
 
 
-def _point_operator(comm, local: sp.csr_matrix, n_nodes_local: int) -> PETSc.Mat:
-    """PETSc matrix of a scalar point operator (rows: this rank's points).  Collective.
+def _point_operator(comm, csr, n_nodes_local: int, n_nodes: int) -> PETSc.Mat:
+    """PETSc matrix of a scalar point operator from its CSR arrays (rows: this rank's points).
 
-    Without inodes: the rows of neighbouring points may share a pattern, and PETSc's inode
-    product adds such rows' terms in pairs; the plain product sums each row in column
-    order, as the interleaved operator (whose rows never share a pattern) did.
+    Collective.  Without inodes: the rows of neighbouring points may share a pattern, and
+    PETSc's inode product adds such rows' terms in pairs; the plain product sums each row
+    in column order, as the interleaved operator (whose rows never share a pattern) did.
     """
-    matrix = petsc_matrix(comm, local, n_nodes_local, local.shape[1])
+    indptr, indices, data = csr
+    matrix = PETSc.Mat().createAIJ(
+        size=((len(indptr) - 1, PETSc.DETERMINE), (n_nodes_local, n_nodes)),
+        csr=(
+            indptr.astype(PETSc.IntType, copy=False),
+            indices.astype(PETSc.IntType, copy=False),
+            data.astype(PETSc.ScalarType, copy=False),
+        ),
+        comm=comm,
+    )
+    matrix.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
     matrix.setOption(PETSc.Mat.Option.USE_INODES, False)
     matrix.assemble()  # drops the inode routines the first assembly chose
     return matrix
