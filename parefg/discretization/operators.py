@@ -368,7 +368,7 @@ class _Builder:
         """u_h and its gradient at this rank's own nodes (MLS does not interpolate)."""
         start, stop = self.node_ranges[self.comm.rank], self.node_ranges[self.comm.rank + 1]
         points = self.cloud.coords[start:stop]
-        shape = self._shape(points, gradients=True)
+        shape = self._shape(points, gradients=False)  # gradients: PointGradients, on use
         with phase(self.timings, "assembly"):
             quadrature = Quadrature(
                 points=points,
