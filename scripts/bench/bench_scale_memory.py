@@ -8,7 +8,7 @@ RSS of the largest rank, and the phase times.  KB/DOF is (peak RSS - the RSS of 
 run) summed over the ranks, per DOF.  Prints a markdown table and writes
 results/bench_scale_memory.csv.  Each case runs once (the big ones need GBs):
 
-    nice .venv/bin/python scripts/bench/bench_scale_memory.py --degree 1 --h 0.01,0.003125 --ranks 1,2
+    nice .venv/bin/python scripts/bench/bench_scale_memory.py --degree 1 --h 0.01 --ranks 1,2
 """
 
 import json
