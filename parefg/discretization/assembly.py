@@ -9,8 +9,8 @@ contributions as scipy CSR matrices with *global* column indices.  Square operat
 (mass, stiffness, penalty) have rows on every node the rank's points touch; the rows
 owned by other ranks are sent to their owners in one all-to-all exchange
 (:func:`parefg.parallel.owned_rows`), so each rank ends with exactly its block of rows
-and the PETSc matrix is created with exact preallocation.  Rectangular point operators (values or
-gradients at this rank's points) need no exchange: their rows are this rank's points.
+and the PETSc matrix is created with exact preallocation.  Rectangular point operators (values
+at this rank's points) need no exchange: their rows are this rank's points.
 """
 
 from __future__ import annotations
@@ -53,24 +53,14 @@ def _point_rows(nodes, mask, data, components, stride, n_cols) -> sp.csr_matrix:
 
 
 def value_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
-    """(2 n_points x 2 n_nodes) interleaved values: entry (2q + c, 2I + c) = phi_I(x_q).
+    """(n_points x n_nodes) scalar values S[q, I] = phi_I(x_q), columns sorted.
 
-    kron(S, I_2) of the scalar (n_points x n_nodes) matrix S[q, I] = phi_I(x_q), built
-    without the Kronecker product.
+    It acts on each displacement component: the interleaved operator is kron(S, I_2)
+    (:class:`~parefg.discretization.operators.PointSet`).
     """
     order, nodes, mask = _sorted_neighbours(shape, n_nodes)
     phi = np.take_along_axis(shape.phi, order, axis=1)[:, None, :]  # (n_points, 1, n_max)
-    return _point_rows(nodes, mask, phi, np.arange(2), 2, 2 * n_nodes)
-
-
-def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
-    """(4 n_points x 2 n_nodes) gradients: row 4q + 2c + d = d phi_I / d x_d on DOF 2I + c."""
-    if shape.dphi is None:
-        raise ValueError("gradient_operator needs shape values evaluated with gradients")
-    order, nodes, mask = _sorted_neighbours(shape, n_nodes)
-    dphi = np.take_along_axis(shape.dphi, order[:, :, None], axis=1)  # (n_points, n_max, 2)
-    per_row = dphi.transpose(0, 2, 1)[:, [0, 1, 0, 1], :]  # (n_points, 4, n_max): d = 0, 1, 0, 1
-    return _point_rows(nodes, mask, per_row, np.array([0, 0, 1, 1]), 2, 2 * n_nodes)
+    return _point_rows(nodes, mask, phi, np.zeros(1, dtype=np.int64), 1, n_nodes)
 
 
 @dataclass
@@ -144,9 +134,10 @@ class Coupling:
         ``left`` (n_points, n_max, n_left) and ``right`` (n_points, n_max, n_right) are
         per-slot shape data (phi[..., None] or dphi).  Returns (nnz, n_left, n_right).
         """
+        data = np.zeros((len(self.indices), left.shape[2], right.shape[2]))
         if len(self.pair_local) == 0:
-            return np.zeros((len(self.indices), left.shape[2], right.shape[2]))
-        return kernels.gram_groups(
+            return data
+        kernels.gram_groups(
             np.ascontiguousarray(left, dtype=np.float64),
             np.ascontiguousarray(right, dtype=np.float64),
             np.ascontiguousarray(weights, dtype=np.float64),
@@ -158,9 +149,10 @@ class Coupling:
             self.pair_start,
             self.pair_local,
             self.pair_position,
-            len(self.indices),
+            data,
             np.zeros(self.n_nodes, dtype=np.int64),
         )
+        return data
 
     def interleaved(self, blocks: np.ndarray, diagonal_only: bool = False) -> sp.csr_matrix:
         """(2 n_nodes)^2 CSR with entry (2I + a, 2J + b) = blocks[p, a, b], p = (I, J).
@@ -168,8 +160,16 @@ class Coupling:
         ``diagonal_only`` stores only a = b: kron(G, I_2) for a scalar G given as
         blocks[p, 0, 0] = blocks[p, 1, 1].  Explicit zeros are kept (they are pattern).
         """
-        indptr, indices, data = kernels.interleave_blocks(
-            self.indptr, self.indices, np.ascontiguousarray(blocks, dtype=np.float64), diagonal_only
-        )
-        n_dofs = 2 * self.n_nodes
-        return sp.csr_matrix((data, indices, indptr), shape=(n_dofs, n_dofs))
+        return interleaved(self.indptr, self.indices, blocks, diagonal_only)
+
+
+def interleaved(indptr, indices, blocks: np.ndarray, diagonal_only: bool = False) -> sp.csr_matrix:
+    """(2 n)^2 CSR of the scalar pattern (indptr, indices) with 2 x 2 ``blocks`` per entry.
+
+    See :meth:`Coupling.interleaved`.
+    """
+    out_ptr, out_indices, data = kernels.interleave_blocks(
+        indptr, indices, np.ascontiguousarray(blocks, dtype=np.float64), diagonal_only
+    )
+    n_dofs = 2 * (len(indptr) - 1)
+    return sp.csr_matrix((data, out_indices, out_ptr), shape=(n_dofs, n_dofs))

@@ -152,9 +152,9 @@ def pairs_to_csr(pair_row, pair_col, n_nodes):
 @_jit
 def gram_groups(
     left, right, weights, neighbours, mask, group_start, node_start, nodes,
-    pair_start, pair_local, pair_position, nnz, local_of,
+    pair_start, pair_local, pair_position, data, local_of,
 ):  # fmt: skip
-    """Values of the Gram matrix on its pattern, one dense product per group of points.
+    """Add the Gram matrix's values on its pattern into ``data``, one dense product per group.
 
     Per group, with L and R the group's (size n_comp, n_group_points) matrices of
     w_q left and right (:func:`_group_matrix`), the local Gram matrix is L R^T; its
@@ -165,16 +165,13 @@ def gram_groups(
     left : (n_points, n_max, n_left), right : (n_points, n_max, n_right)
         Shape-function data per point and neighbour slot (phi, or its gradient).
     weights : (n_points,) quadrature weights.
+    data : (nnz, n_left, n_right), accumulated: data[p, a, b] += sum_q w_q left[q, I, a]
+        right[q, J, b] for the entry p = (I, J) (groups in order, so blocks of groups
+        added one after the other sum as all groups at once).
     local_of : (n_nodes,) scratch.
-
-    Returns
-    -------
-    data : ndarray, shape (nnz, n_left, n_right)
-        data[p, a, b] = sum_q w_q left[q, I, a] right[q, J, b] for the entry p = (I, J).
     """
     n_left, n_right = left.shape[2], right.shape[2]
     unit = np.ones(len(weights))
-    data = np.zeros((nnz, n_left, n_right))
     for g in range(len(group_start) - 1):
         size, first, last = node_start[g + 1] - node_start[g], group_start[g], group_start[g + 1]
         _set_local(local_of, nodes[node_start[g] : node_start[g + 1]])
@@ -186,7 +183,16 @@ def gram_groups(
             for a in range(n_left):
                 for b in range(n_right):
                     data[pair_position[e], a, b] += dense[i * n_left + a, j * n_right + b]
-    return data
+
+
+@_jit
+def pair_positions(indptr, indices, pair_row, pair_col):
+    """CSR entry of each (row, col) pair of a pattern holding them all (binary search)."""
+    position = np.empty(len(pair_row), dtype=np.int64)
+    for e in range(len(pair_row)):
+        first, last = indptr[pair_row[e]], indptr[pair_row[e] + 1]
+        position[e] = first + np.searchsorted(indices[first:last], pair_col[e])
+    return position
 
 
 @_jit
@@ -203,7 +209,7 @@ def interleave_blocks(indptr, indices, blocks, diagonal_only):
         length = per_row * (indptr[row + 1] - indptr[row])
         out_ptr[2 * row + 1] = out_ptr[2 * row] + length
         out_ptr[2 * row + 2] = out_ptr[2 * row + 1] + length
-    out_indices = np.empty(out_ptr[-1], dtype=np.int64)
+    out_indices = np.empty(out_ptr[-1], dtype=np.int32)  # 2 n < 2^31 (budget.MAX_INDEX)
     out_data = np.empty(out_ptr[-1])
     for row in range(n_rows):
         for a in range(2):

@@ -8,7 +8,6 @@ u_h (and its gradient) at quadrature points, Gamma_C points and nodes.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,14 +16,16 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.boundary import BoundaryKind
-from parefg.discretization.assembly import Coupling, gradient_operator, value_operator
+from parefg.discretization.assembly import Coupling, interleaved, value_operator
 from parefg.discretization.budget import Budget, check_problem_size
+from parefg.discretization.domain_assembly import assemble_domain
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
+from parefg.discretization.point_gradients import PointGradients
 from parefg.discretization.quadrature import Quadrature, cell_quadrature, segment_quadrature
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.geometry.partition import Partition, partition_cloud
-from parefg.parallel import owned_rows, petsc_matrix, raise_everywhere
+from parefg.parallel import owned_rows, raise_everywhere
 from parefg.profiling import phase
 
 
@@ -32,10 +33,12 @@ from parefg.profiling import phase
 class PointSet:
     """This rank's points of one kind, with the operator evaluating u_h there.
 
-    ``values`` is a (2 n_points x n_dofs) PETSc matrix, interleaved like the DOFs, so
-    ``values @ d`` gives (u_x, u_y) at each point and ``values^T`` integrates point forces.
-    The gradient operator is built on first use (it is the largest operator and only
-    error norms and nodal stresses need it).
+    ``values`` is the scalar (n_points x n_nodes) PETSc matrix S[q, I] = phi_I(x_q); it
+    acts on each displacement component (every other entry of the interleaved DOFs), so
+    ``evaluate`` gives (u_x, u_y) at each point and ``integrate`` applies S^T to point
+    forces: the interleaved operator kron(S, I_2) without storing it twice.  Gradients
+    come from ``gradients`` (MLS re-evaluated at the points, block by block: only error
+    norms and nodal stresses need them); None for point sets without gradients.
     """
 
     points: np.ndarray  # (n_points, 2)
@@ -44,49 +47,48 @@ class PointSet:
     values: PETSc.Mat
     part: np.ndarray | None = None  # (n_points,) boundary part index of each point
     rows: np.ndarray | None = None  # (n_points,) global, rank-independent row of each point
-    build_gradients: Callable[[], PETSc.Mat] | None = field(default=None, repr=False)
-    _gradients: PETSc.Mat | None = field(default=None, init=False, repr=False)
-    # work vectors at the points, created on first use and reused (no PETSc object per call)
+    gradients: PointGradients | None = field(default=None, repr=False)
+    # work vectors at the points and the nodes, created on first use and reused (no PETSc
+    # object per call)
     _point_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
-    _gradient_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
+    _node_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
 
-    @property
-    def gradients(self) -> PETSc.Mat | None:
-        """(4 n_points x n_dofs): du_x/dx, du_x/dy, du_y/dx, du_y/dy; None without gradients.
-
-        Collective on first access (it creates the PETSc matrix).
-        """
-        if self._gradients is None and self.build_gradients is not None:
-            self._gradients = self.build_gradients()
-        return self._gradients
-
-    def _points_work(self) -> PETSc.Vec:
+    def _work(self) -> tuple[PETSc.Vec, PETSc.Vec]:
         if self._point_vec is None:
             self._point_vec = self.values.createVecLeft()
-        return self._point_vec
+            self._node_vec = self.values.createVecRight()
+        assert self._node_vec is not None
+        return self._point_vec, self._node_vec
 
     def evaluate(self, u: PETSc.Vec) -> np.ndarray:
         """u_h at the points, (n_points, 2).  Collective."""
-        out = self._points_work()
-        self.values.mult(u, out)
-        return out.getArray().reshape(-1, 2).copy()
+        point_vec, node_vec = self._work()
+        dofs = u.getArray(readonly=True)
+        out = np.empty((len(self.points), 2))
+        for component in range(2):
+            node_vec.setArray(dofs[component::2])
+            self.values.mult(node_vec, point_vec)
+            out[:, component] = point_vec.getArray(readonly=True)
+        return out
 
     def evaluate_gradient(self, u: PETSc.Vec) -> np.ndarray:
         """grad u_h at the points, (n_points, 2, 2) with [q, i, j] = d u_i / d x_j.  Collective."""
-        gradients = self.gradients
-        if gradients is None:
-            raise ValueError("this point set has no gradient operator")
-        if self._gradient_vec is None:
-            self._gradient_vec = gradients.createVecLeft()
-        out = self._gradient_vec
-        gradients.mult(u, out)
-        return out.getArray().reshape(-1, 2, 2).copy()
+        if self.gradients is None:
+            raise ValueError("this point set has no gradients")
+        return self.gradients.evaluate(self.values.getComm().tompi4py(), u)
 
     def integrate(self, density: np.ndarray, out: PETSc.Vec) -> None:
-        """out = int density . phi_I = values^T (w density); density (n_points, 2).  Collective."""
-        point_vec = self._points_work()
-        point_vec.setArray((density * self.weights[:, None]).ravel())
-        self.values.multTranspose(point_vec, out)
+        """out = int density . phi_I = S^T (w density) per component; density (n_points, 2).
+
+        Collective.
+        """
+        point_vec, node_vec = self._work()
+        dofs = np.empty(2 * node_vec.getLocalSize())
+        for component in range(2):
+            point_vec.setArray(density[:, component] * self.weights)
+            self.values.multTranspose(point_vec, node_vec)
+            dofs[component::2] = node_vec.getArray(readonly=True)
+        out.setArray(dofs)
 
 
 @dataclass
@@ -101,7 +103,6 @@ class Discretization:
     mass: PETSc.Mat  # M = int rho phi_I phi_J
     stiffness: PETSc.Mat  # K = a(phi_J, phi_I)
     dirichlet: PETSc.Mat  # G_D = int_{Gamma_D} phi_I phi_J (without alpha)
-    owned: dict[str, sp.csr_matrix]  # this rank's rows of "mass", "stiffness", "dirichlet"
     contact_pattern: sp.csr_matrix  # owned rows of the Gamma_C coupling pattern (zeros)
     domain: PointSet
     nodes: PointSet
@@ -114,6 +115,17 @@ class Discretization:
     @property
     def n_dofs(self) -> int:
         return 2 * self.n_nodes
+
+    @property
+    def owned(self) -> dict[str, sp.csr_matrix]:
+        """This rank's rows of "mass", "stiffness", "dirichlet" as scipy CSR (global columns).
+
+        Copies made on each access from the PETSc matrices (the values they were built from,
+        explicit zeros included), for combining them into new matrices: no scipy twin of a
+        PETSc matrix is kept.  Not collective.
+        """
+        matrices = {"mass": self.mass, "stiffness": self.stiffness, "dirichlet": self.dirichlet}
+        return {name: scipy_rows(matrix) for name, matrix in matrices.items()}
 
     def create_vec(self) -> PETSc.Vec:
         """A zero DOF vector with this rank's block.  Collective."""
@@ -159,7 +171,8 @@ class _Builder:
         self.dof_ranges = 2 * self.node_ranges
         start, stop = self.node_ranges[comm.rank], self.node_ranges[comm.rank + 1]
         self.node_range = (int(start), int(stop))
-        self.n_dofs_local = 2 * (stop - start)
+        self.n_nodes_local = int(stop - start)
+        self.n_dofs_local = 2 * self.n_nodes_local
         self.mls = MLS(
             self.cloud.coords,
             scene.support * self.cloud.spacing,
@@ -170,28 +183,12 @@ class _Builder:
         self.conditions: list[np.ndarray] = []  # MLS condition numbers of every point set
 
     def build(self) -> Discretization:
-        comm, scene, cloud = self.comm, self.scene, self.cloud
-        domain_q, domain_shape = self._domain_points()
-        dphi = domain_shape.dphi
-        assert dphi is not None  # evaluated with gradients
-        with phase(self.timings, "assembly"):
-            n = self.n_nodes
-            coupling = Coupling.of(domain_shape, n, domain_q.cell)
-            phi = domain_shape.phi[:, :, None]
-            mass_gram = coupling.gram(phi, phi, scene.rho * domain_q.weights)
-            mass_local = coupling.interleaved(_mass_blocks(mass_gram), diagonal_only=True)
-            stiffness_gram = coupling.gram(dphi, dphi, domain_q.weights)
-            stiffness_local = coupling.interleaved(
-                _stiffness_blocks(stiffness_gram, scene.lam, scene.mu)
-            )
-            domain = self._point_set(domain_q, domain_shape, gradients=True)
-
+        comm, cloud, n = self.comm, self.cloud, self.n_nodes
+        domain, mass, stiffness = self._domain()
         boundary, contact, dirichlet_local, pattern_local = self._boundaries()
         nodes = self._node_points()
         with phase(self.timings, "assembly"):
-            local = {"mass": mass_local, "stiffness": stiffness_local, "dirichlet": dirichlet_local}
-            owned = {name: owned_rows(comm, rows, self.dof_ranges) for name, rows in local.items()}
-            mass, stiffness, dirichlet = (self._square(owned[name]) for name in local)
+            dirichlet = self._square(dirichlet_local)
             contact_pattern = owned_rows(comm, pattern_local, self.dof_ranges)
         conditions = np.concatenate(self.conditions) if self.conditions else np.ones(1)
         return Discretization(
@@ -203,7 +200,6 @@ class _Builder:
             mass=mass,
             stiffness=stiffness,
             dirichlet=dirichlet,
-            owned=owned,
             contact_pattern=contact_pattern,
             domain=domain,
             nodes=nodes,
@@ -216,6 +212,38 @@ class _Builder:
                 comm.allreduce(conditions.max(), op=MPI.MAX),
             ),
         )
+
+    def _domain(self) -> tuple[PointSet, PETSc.Mat, PETSc.Mat]:
+        """The domain point set, M and K, from MLS evaluated block by block."""
+        scene, quadrature = self.scene, self._domain_quadrature()
+        operators, error = None, None
+        try:
+            operators = assemble_domain(
+                self.mls, quadrature, scene.rho, lambda name: phase(self.timings, name)
+            )
+        except MLSError as failure:
+            error = failure
+        raise_everywhere(self.comm, error)
+        assert operators is not None  # no rank failed
+        if len(quadrature.points):
+            self.conditions.append(np.array(operators.condition_range))
+        with phase(self.timings, "assembly"):
+            pattern = (operators.indptr, operators.indices)
+            blocks = _mass_blocks(operators.mass)
+            mass = self._square(interleaved(*pattern, blocks, diagonal_only=True))
+            blocks = _stiffness_blocks(operators.gradient_gram, scene.lam, scene.mu)
+            operators.gradient_gram = operators.mass = np.zeros(0)
+            stiffness = self._square(interleaved(*pattern, blocks))
+            del blocks
+            csr = (operators.value_indptr, operators.value_indices, operators.value_data)
+            domain = PointSet(
+                points=quadrature.points,
+                weights=quadrature.weights,
+                normals=None,
+                values=_point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes),
+                gradients=PointGradients(self.mls, quadrature.points, keep=False),
+            )
+        return domain, mass, stiffness
 
     def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
         """MLS at this rank's points; an MLS failure on any rank is raised on every rank."""
@@ -232,9 +260,10 @@ class _Builder:
             self.conditions.append(shape.condition)
         return shape
 
-    def _domain_points(self) -> tuple[Quadrature, ShapeValues]:
+    def _domain_quadrature(self) -> Quadrature:
+        """Gauss points of this rank's cells."""
         rank, cloud, part = self.comm.rank, self.cloud, self.partition
-        quadrature = cell_quadrature(
+        return cell_quadrature(
             cloud.coords,
             cloud.quads,
             cloud.triangles,
@@ -242,24 +271,48 @@ class _Builder:
             quad_ids=np.flatnonzero(part.quad_owner == rank),
             triangle_ids=np.flatnonzero(part.triangle_owner == rank),
         )
-        return quadrature, self._shape(quadrature.points, gradients=True)
 
-    def _square(self, owned: sp.csr_matrix) -> PETSc.Mat:
-        return petsc_matrix(self.comm, owned, self.n_dofs_local, 2 * self.n_nodes, block_size=2)
+    def _square(self, local: sp.csr_matrix) -> PETSc.Mat:
+        """The PETSc DOF matrix of every rank's ``local`` contributions.  Collective.
 
-    def _point_set(self, quadrature: Quadrature, shape: ShapeValues, gradients=False, **extra):
-        comm, n, n_dofs_local = self.comm, self.n_nodes, self.n_dofs_local
-        values = petsc_matrix(comm, value_operator(shape, n), n_dofs_local, 2 * n)
+        As :func:`~parefg.parallel.petsc_matrix`, without copying the CSR arrays first.
+        """
+        owned = owned_rows(self.comm, local, self.dof_ranges)
+        del local
+        owned.sort_indices()
+        matrix = PETSc.Mat().createAIJ(
+            size=((self.n_dofs_local, PETSc.DETERMINE), (self.n_dofs_local, 2 * self.n_nodes)),
+            csr=tuple(
+                array.astype(kind, copy=False)
+                for array, kind in zip(
+                    (owned.indptr, owned.indices, owned.data),
+                    (PETSc.IntType, PETSc.IntType, PETSc.ScalarType),
+                    strict=True,
+                )
+            ),
+            bsize=2,
+            comm=self.comm,
+        )
+        matrix.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        matrix.assemble()
+        return matrix
 
-        def build_gradients() -> PETSc.Mat:
-            return petsc_matrix(comm, gradient_operator(shape, n), n_dofs_local, 2 * n)
+    def _point_set(self, quadrature, shape, gradients=False, keep_gradients=False, **extra):
+        """The PointSet of ``quadrature``: its value operator, and its gradients if asked.
 
+        ``keep_gradients`` keeps the shape gradients once used (the nodes: output steps
+        evaluate them again); else they are re-evaluated per use (the domain: error norms).
+        """
+        local = value_operator(shape, self.n_nodes)
+        csr = (local.indptr, local.indices, local.data)
+        values = _point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes)
+        source = PointGradients(self.mls, quadrature.points, keep=keep_gradients)
         return PointSet(
             points=quadrature.points,
             weights=quadrature.weights,
             normals=quadrature.normals,
             values=values,
-            build_gradients=build_gradients if gradients else None,
+            gradients=source if gradients else None,
             **extra,
         )
 
@@ -315,7 +368,7 @@ class _Builder:
         """u_h and its gradient at this rank's own nodes (MLS does not interpolate)."""
         start, stop = self.node_ranges[self.comm.rank], self.node_ranges[self.comm.rank + 1]
         points = self.cloud.coords[start:stop]
-        shape = self._shape(points, gradients=True)
+        shape = self._shape(points, gradients=False)  # gradients: PointGradients, on use
         with phase(self.timings, "assembly"):
             quadrature = Quadrature(
                 points=points,
@@ -323,10 +376,40 @@ class _Builder:
                 cell=np.arange(start, stop),
                 normals=None,
             )
+            rows = self.cloud.original_index[start:stop]
             nodes = self._point_set(
-                quadrature, shape, gradients=True, rows=self.cloud.original_index[start:stop]
+                quadrature, shape, gradients=True, keep_gradients=True, rows=rows
             )
         return nodes
+
+
+def scipy_rows(matrix: PETSc.Mat) -> sp.csr_matrix:
+    """This rank's rows of a PETSc AIJ matrix as scipy CSR with global columns (a copy)."""
+    indptr, indices, data = matrix.getValuesCSR()
+    return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, matrix.getSize()[1]))
+
+
+def _point_operator(comm, csr, n_nodes_local: int, n_nodes: int) -> PETSc.Mat:
+    """PETSc matrix of a scalar point operator from its CSR arrays (rows: this rank's points).
+
+    Collective.  Without inodes: the rows of neighbouring points may share a pattern, and
+    PETSc's inode product adds such rows' terms in pairs; the plain product sums each row
+    in column order, as the interleaved operator (whose rows never share a pattern) did.
+    """
+    indptr, indices, data = csr
+    matrix = PETSc.Mat().createAIJ(
+        size=((len(indptr) - 1, PETSc.DETERMINE), (n_nodes_local, n_nodes)),
+        csr=(
+            indptr.astype(PETSc.IntType, copy=False),
+            indices.astype(PETSc.IntType, copy=False),
+            data.astype(PETSc.ScalarType, copy=False),
+        ),
+        comm=comm,
+    )
+    matrix.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+    matrix.setOption(PETSc.Mat.Option.USE_INODES, False)
+    matrix.assemble()  # drops the inode routines the first assembly chose
+    return matrix
 
 
 def build_discretization(comm, scene, budget: Budget | None = None) -> Discretization:

@@ -96,7 +96,8 @@ class ContactLaw:
         self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
         self.step_friction = np.zeros(len(self.weights))
         # rotated value operator: rows 2q = nu_q . u_h(x_q), 2q + 1 = tau_q . u_h(x_q)
-        values = _scipy_from_petsc(points.values)
+        # kron(S, I_2) of the scalar value operator: rows 2q, 2q + 1 = (u_x, u_y)(x_q)
+        values = sp.kron(_scipy_from_petsc(points.values), sp.identity(2), format="csr")
         n_points = len(normals)
         q = np.arange(n_points)
         rotation = sp.csr_matrix(
@@ -115,7 +116,7 @@ class ContactLaw:
         self.normal_op = local[0::2]  # (n_c, n_dofs) scipy, for the Jacobian
         self.tangent_op = local[1::2]
         self.operator = petsc_matrix(
-            comm, local, points.values.getLocalSize()[1], points.values.getSize()[1]
+            comm, local, 2 * points.values.getLocalSize()[1], 2 * points.values.getSize()[1]
         )
         # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
         self._point_vec = self.operator.createVecLeft()

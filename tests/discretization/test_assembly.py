@@ -163,14 +163,21 @@ def test_dirichlet_and_contact_pattern_equal_reference(case):
 
 
 def test_point_operators_equal_reference(case):
+    """Values: the scalar operator S; gradients of a field: the reference gradient operator."""
     _, disc, mls = case
     n = disc.n_nodes
+    u = disc.create_vec()
+    start, stop = disc.node_range
+    coords = disc.cloud.coords[start:stop]
+    u.setArray(np.column_stack([np.sin(3 * coords[:, 0]), coords[:, 0] * coords[:, 1]]).ravel())
+    whole = np.concatenate(disc.comm.allgather(u.getArray()))  # (2 n,) every rank's block
     for points in (disc.domain, disc.nodes):
         shape = mls.evaluate(points.points, gradients=True)
-        values = reference_interleave(reference_scalar(shape, n)).toarray()
-        assert_equal_matrices(petsc_local_rows(points.values), values)
-        gradients = reference_gradients(shape, n).toarray()
-        assert_equal_matrices(petsc_local_rows(points.gradients), gradients)
+        assert_equal_matrices(petsc_local_rows(points.values), reference_scalar(shape, n).toarray())
+        expected = (reference_gradients(shape, n) @ whole).reshape(-1, 2, 2)
+        assert_equal_matrices(points.evaluate_gradient(u), expected)
+        values = reference_interleave(reference_scalar(shape, n)) @ whole
+        assert_equal_matrices(points.evaluate(u), values.reshape(-1, 2))
 
 
 def test_grouping_does_not_change_the_gram_matrix(case):

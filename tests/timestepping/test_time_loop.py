@@ -89,7 +89,7 @@ def test_unrequested_von_mises_builds_no_gradient_operator(comm):
     sim = prepare(comm, "square", [*TINY, "time.dt=0.25", "output.fields=['u', 'contact']"])
     node_fields, contact_fields = _output_fields(sim, sim.start())
     assert sorted(node_fields) == ["displacement"] and "status" in contact_fields
-    assert sim.disc.nodes._gradients is None  # the nodal gradient operator was never built
+    assert sim.disc.nodes.gradients.kept is None  # the nodal shape gradients were never built
 
 
 def start_cli(args, ranks=1):

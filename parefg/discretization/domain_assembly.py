@@ -1,0 +1,132 @@
+"""M, K and the value operator of the domain, from MLS evaluated block by block (SPEC 3).
+
+The domain's shape functions with gradients and the coupled node pairs of its cells are
+the largest arrays of the build (tens of KB per DOF at m = 2).  :func:`assemble_domain`
+walks blocks of consecutive cells twice, so that only one block's exist at a time:
+
+1. each block's neighbour lists and coupled pairs give the scalar pattern of the Gram
+   matrices (the distinct pairs of all blocks) and each point's row length in the value
+   operator;
+2. each block's MLS values and gradients are added into the pattern's entries
+   (:func:`~parefg.discretization.assembly_kernels.gram_groups`, group by group) and
+   written into its rows of the value operator S[q, I] = phi_I(x_q).
+
+Groups (cells) are added in the order of :meth:`Coupling.gram
+<parefg.discretization.assembly.Coupling.gram>` over all points, and every point's shape
+functions are those of one MLS call over all of them, so the sums are the same to the
+last bit.  Not collective.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from parefg.discretization import assembly_kernels as kernels
+from parefg.discretization.assembly import value_operator
+from parefg.discretization.mls import MLS
+from parefg.discretization.quadrature import Quadrature
+
+# Points per block: bounds the block's shape arrays and pairs (tens of MB at m = 2).
+BLOCK_POINTS = 65536
+
+
+@dataclass
+class DomainOperators:
+    """The scalar Gram data on their pattern, and the value operator's CSR arrays."""
+
+    indptr: np.ndarray  # (n_nodes + 1,) scalar pattern of M and K
+    indices: np.ndarray  # (nnz,) sorted within each row
+    mass: np.ndarray  # (nnz, 1, 1) int rho phi_I phi_J
+    gradient_gram: np.ndarray  # (nnz, 2, 2) int d_a phi_I d_b phi_J
+    value_indptr: np.ndarray  # (n_points + 1,) CSR of S (n_points x n_nodes)
+    value_indices: np.ndarray  # (n_slots,) int32 nodes
+    value_data: np.ndarray  # (n_slots,) phi
+    condition_range: tuple[float, float]  # min, max MLS moment condition number
+
+
+def _blocks(cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(block bounds over points, group starts): blocks end at group (cell) boundaries."""
+    n_points = len(cell)
+    group_start = np.concatenate([[0], np.flatnonzero(np.diff(cell)) + 1, [n_points]])
+    group_start = group_start.astype(np.int64)
+    targets = np.arange(BLOCK_POINTS, n_points, BLOCK_POINTS)
+    inner = group_start[np.searchsorted(group_start, targets)]
+    return np.unique(np.concatenate([[0], inner, [n_points]])), group_start
+
+
+def _pairs(neighbours, mask, group_start, n_nodes):
+    """The groups' nodes and coupled pairs (see Coupling.of) of one block."""
+    node_start, nodes = kernels.group_nodes(neighbours, mask, group_start, n_nodes)
+    local_of = np.zeros(n_nodes, dtype=np.int64)  # scratch of the kernels
+    pairs = kernels.touched_pairs(neighbours, mask, group_start, node_start, nodes, local_of)
+    return node_start, nodes, pairs
+
+
+def assemble_domain(mls: MLS, quadrature: Quadrature, rho: float, timer) -> DomainOperators:
+    """The domain's Gram data and value operator (see the module docstring).  Not collective.
+
+    ``timer(name)`` is a context manager timing the phases "neighbours", "mls" and
+    "assembly".  Raises MLSError as :meth:`MLS.evaluate` does.
+    """
+    points, n_nodes = quadrature.points, len(mls.nodes)
+    bounds, group_start = _blocks(quadrature.cell)
+    blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+    def groups_of(first, last):  # the block's group starts, relative to its first point
+        return group_start[(group_start >= first) & (group_start <= last)] - first
+
+    # pass 1: the pattern and the row lengths of S
+    rows, cols = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    row_lengths = np.zeros(len(points), dtype=np.int64)
+    for first, last in blocks:
+        with timer("neighbours"):
+            neighbours, mask = mls.find_neighbours(points[first:last])
+        with timer("assembly"):
+            *_, (_, _, pair_row, pair_col) = _pairs(
+                neighbours, mask, groups_of(first, last), n_nodes
+            )
+            block_ptr, block_indices, _ = kernels.pairs_to_csr(pair_row, pair_col, n_nodes)
+            rows.append(np.repeat(np.arange(n_nodes), np.diff(block_ptr)))
+            cols.append(block_indices)
+            row_lengths[first:last] = mask.sum(axis=1)
+    with timer("assembly"):
+        indptr, indices, _ = kernels.pairs_to_csr(
+            np.concatenate(rows), np.concatenate(cols), n_nodes
+        )
+        del rows, cols
+        mass = np.zeros((len(indices), 1, 1))
+        gradient_gram = np.zeros((len(indices), 2, 2))
+        value_indptr = np.concatenate([[0], np.cumsum(row_lengths)])
+        value_indices = np.empty(value_indptr[-1], dtype=np.int32)
+        value_data = np.empty(value_indptr[-1])
+    # pass 2: MLS per block, its Gram contributions and its rows of S
+    low, high = np.inf, 0.0
+    for first, last in blocks:
+        with timer("neighbours"):
+            neighbours, mask = mls.find_neighbours(points[first:last])
+        with timer("mls"):
+            shape = mls.evaluate(points[first:last], gradients=True, neighbours=(neighbours, mask))
+        low, high = min(low, shape.condition.min()), max(high, shape.condition.max())
+        with timer("assembly"):
+            groups = groups_of(first, last)
+            node_start, nodes, (pair_start, pair_local, pair_row, pair_col) = _pairs(
+                neighbours, mask, groups, n_nodes
+            )
+            position = kernels.pair_positions(indptr, indices, pair_row, pair_col)
+            weights = quadrature.weights[first:last]
+            local_of = np.zeros(n_nodes, dtype=np.int64)
+            common = (neighbours, mask, groups, node_start, nodes, pair_start, pair_local, position)
+            phi = np.ascontiguousarray(shape.phi[:, :, None])
+            kernels.gram_groups(phi, phi, rho * weights, *common, mass, local_of)
+            dphi = np.ascontiguousarray(shape.dphi)
+            kernels.gram_groups(
+                dphi, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
+            )
+            piece = value_operator(shape, n_nodes)  # the block's rows, columns sorted
+            value_indices[value_indptr[first] : value_indptr[last]] = piece.indices
+            value_data[value_indptr[first] : value_indptr[last]] = piece.data
+    return DomainOperators(
+        indptr, indices, mass, gradient_gram, value_indptr, value_indices, value_data, (low, high)
+    )

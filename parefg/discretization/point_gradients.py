@@ -1,0 +1,129 @@
+"""grad u_h at a set of points, evaluated block by block without a gradient operator (SPEC 2).
+
+A gradient operator (du_i/dx_j at every point, one entry per point and neighbour) would be
+the largest array of a run, and only error norms (once) and nodal stresses (at output
+steps) need it.  :class:`PointGradients` instead evaluates MLS with gradients at a block
+of points, multiplies by the nodal values of u_h there and drops the block; the nodal
+values a rank's points reach are gathered once per call (owned and ghost nodes).
+
+The sums follow PETSc's AIJ product of the interleaved operator (4 rows per point: an
+inode of two rows per DOF component, whose kernel adds the terms in pairs), so that the
+numbers equal those of the assembled operator on one rank.  Points with one neighbour
+list evaluate with the MLS of the run (the same neighbours, in the same order), so their
+shape functions are those the operators were built from.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from petsc4py import PETSc
+
+from parefg.discretization.mls import MLS
+
+# Points per MLS block: bounds the transient shape arrays (a few MB at m = 2).
+BLOCK_POINTS = 4096
+
+
+class PointGradients:
+    """Gradients of u_h at ``points`` (this rank's), from MLS re-evaluated per block.
+
+    ``keep`` stores each block's sorted neighbours and shape gradients after the first use
+    (compact: 20 bytes per point and neighbour), for point sets evaluated repeatedly (the
+    nodes, at output steps); otherwise nothing is stored between calls.
+    """
+
+    def __init__(self, mls: MLS, points: np.ndarray, keep: bool):
+        self.mls, self.points, self.keep = mls, points, keep
+        self.kept: list[tuple[np.ndarray, np.ndarray]] | None = None  # (nodes, dphi) per block
+        self._reached: np.ndarray | None = None  # sorted nodes the points reach (kept sets)
+
+    def _block(self, start: int) -> tuple[np.ndarray, np.ndarray]:
+        """(nodes, dphi) of the block at ``start``: neighbours sorted by node, padding last.
+
+        nodes (n_block, n_max) int32, dphi (n_block, n_max, 2); dphi is 0 at padding.
+        """
+        points = self.points[start : start + BLOCK_POINTS]
+        shape = self.mls.evaluate(points, gradients=True)
+        assert shape.dphi is not None  # evaluated with gradients
+        keys = np.where(shape.mask, shape.neighbours, len(self.mls.nodes))  # padding last
+        order = np.argsort(keys, axis=1, kind="stable")
+        nodes = np.take_along_axis(shape.neighbours, order, axis=1).astype(np.int32)
+        return nodes, np.take_along_axis(shape.dphi, order[:, :, None], axis=1)
+
+    def _blocks(self):
+        """The blocks in order (kept ones, or freshly evaluated)."""
+        if self.kept is not None:
+            yield from self.kept
+            return
+        kept = []
+        for start in range(0, len(self.points), BLOCK_POINTS):
+            block = self._block(start)
+            if self.keep:
+                kept.append(block)
+            yield block
+        if self.keep:
+            self.kept = kept
+
+    def _reached_nodes(self) -> np.ndarray:
+        """Sorted nodes the points' neighbour lists hold (kept for kept sets).  Not collective."""
+        if self._reached is not None:
+            return self._reached
+        parts = [np.zeros(0, dtype=np.int64)]
+        for start in range(0, len(self.points), BLOCK_POINTS):
+            neighbours, mask = self.mls.find_neighbours(self.points[start : start + BLOCK_POINTS])
+            parts.append(np.unique(neighbours[mask]))
+        reached = np.unique(np.concatenate(parts))
+        if self.keep:
+            self._reached = reached
+        return reached
+
+    def evaluate(self, comm, u: PETSc.Vec) -> np.ndarray:
+        """(n_points, 2, 2) with [q, i, j] = d u_i / d x_j at the points.  Collective.
+
+        ``u`` is the interleaved DOF vector (block size 2).
+        """
+        nodal, lookup = _nodal_values(comm, u, None if comm.size == 1 else self._reached_nodes())
+        out = np.empty((len(self.points), 2, 2))
+        start = 0
+        for nodes, dphi in self._blocks():
+            at = nodes if lookup is None else np.searchsorted(lookup, nodes)
+            stop = start + len(nodes)
+            for c in range(2):
+                values = nodal[at, c]  # (n_block, n_max) u_c at the neighbours
+                for d in range(2):
+                    out[start:stop, c, d] = _pairwise_row_sums(dphi[:, :, d] * values)
+            start = stop
+        return out
+
+
+def _pairwise_row_sums(products: np.ndarray) -> np.ndarray:
+    """Row sums added as PETSc's inode product adds them: ((0 + (p0 + p1)) + (p2 + p3)) + ...
+
+    ``products`` (n, n_max) with the padding (zeros) last; an odd last term pairs with a
+    zero, which adds nothing.
+    """
+    if products.shape[1] % 2:
+        products = np.pad(products, ((0, 0), (0, 1)))
+    pairs = products[:, 0::2] + products[:, 1::2]  # (n, n_max / 2)
+    total = np.zeros(len(products))
+    for column in range(pairs.shape[1]):
+        total = total + pairs[:, column]
+    return total
+
+
+def _nodal_values(comm, u: PETSc.Vec, reached: np.ndarray | None):
+    """u's nodal values (n, 2) at the ``reached`` nodes (all nodes on one rank).  Collective.
+
+    Returns (values, lookup): lookup is None when values are indexed by node, else the
+    sorted nodes of the rows.
+    """
+    if reached is None:
+        return u.getArray(readonly=True).reshape(-1, 2), None
+    indices = PETSc.IS().createBlock(2, reached.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
+    gathered = PETSc.Vec().createSeq(2 * len(reached), comm=PETSc.COMM_SELF)
+    scatter = PETSc.Scatter().create(u, indices, gathered, None)
+    scatter.scatter(u, gathered, addv=PETSc.InsertMode.INSERT_VALUES)
+    values = gathered.getArray().reshape(-1, 2).copy()
+    for obj in (scatter, gathered, indices):
+        obj.destroy()
+    return values, reached
