@@ -1,0 +1,117 @@
+"""Start-up cost: whole-process wall time of parefg commands and where it goes.
+
+Three tables, all from one run of this script (same machine load):
+
+1. Wall time of whole processes (median of --repeats): ``python -c pass``, the import
+   floor of a run (numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py initialized,
+   mpi4py: the modules ``parefg run square`` cannot do without), ``parefg --help``,
+   ``parefg scenes`` and ``parefg run square --quiet`` (default scene, one rank).
+2. ``python -X importtime`` of ``parefg run square``: cumulative import time by top-level
+   package (self times summed over its modules), medians of --repeats.
+3. The run's own phases (summary.json timings) and the time outside them (interpreter,
+   imports, PETSc initialization, exit) = wall - timings.total.
+
+Writes results/bench_startup.csv (one row per measured quantity).
+
+    .venv/bin/python scripts/bench/bench_startup.py [--repeats 5]
+"""
+
+import collections
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import benchlib
+
+PYTHON = sys.executable
+PAREFG = str(Path(sys.executable).with_name("parefg"))
+RUN_SQUARE = ["run", "square", "--quiet"]
+FLOOR = (
+    "import numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py; "
+    "petsc4py.init(); from petsc4py import PETSc; from mpi4py import MPI"
+)
+COMMANDS = {
+    "python -c pass": [PYTHON, "-c", "pass"],
+    "import floor of a run": [PYTHON, "-c", "import parefg; " + FLOOR],
+    "parefg --help": [PAREFG, "--help"],
+    "parefg scenes": [PAREFG, "scenes"],
+    "parefg run square": [PAREFG, *RUN_SQUARE],
+}
+
+
+def timed_run(command: list[str], out_dir: Path | None = None) -> tuple[float, str]:
+    """Wall time of one process (its --out in a fresh directory) and its stderr."""
+    extra = ["--out", str(out_dir)] if out_dir is not None else []
+    tic = time.perf_counter()
+    done = subprocess.run(
+        command + extra, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    return time.perf_counter() - tic, done.stderr
+
+
+def import_times(stderr: str) -> dict[str, float]:
+    """Seconds of import by top-level package, from ``-X importtime`` lines (self times)."""
+    totals: dict[str, float] = collections.defaultdict(float)
+    for line in stderr.splitlines():
+        if not line.startswith("import time:") or "self [us]" in line:
+            continue
+        self_us, _, name = line.removeprefix("import time:").split("|")
+        totals[name.strip().split(".")[0]] += int(self_us) * 1e-6
+    return dict(totals)
+
+
+def measure(repeats: int, workdir: Path):
+    """Wall times per command, import times per package, run phases: lists of samples."""
+    walls = collections.defaultdict(list)
+    imports = collections.defaultdict(list)
+    phases = collections.defaultdict(list)
+    for r in range(repeats):
+        for label, command in COMMANDS.items():
+            out = workdir / f"wall-{r}" if label == "parefg run square" else None
+            wall, _ = timed_run(command, out)
+            walls[label].append(wall)
+            if out is not None:
+                timings = json.loads((out / "summary.json").read_text())["timings"]
+                for key, value in timings.items():
+                    phases[key].append(value)
+                phases["outside the run (wall - total)"].append(wall - timings["total"])
+        _, stderr = timed_run([PYTHON, "-X", "importtime", PAREFG, *RUN_SQUARE], workdir / f"i{r}")
+        per_package = import_times(stderr)
+        for package, seconds in per_package.items():
+            imports[package].append(seconds)
+        imports["(all imports)"].append(sum(per_package.values()))
+    return walls, imports, phases
+
+
+def table(title: str, samples: dict, limit: int | None = None) -> list[dict]:
+    """Print a markdown table of medians (largest first when limited); return its rows."""
+    rows = [
+        {"table": title, "what": k, "median_s": statistics.median(v)} for k, v in samples.items()
+    ]
+    if limit is not None:
+        rows = sorted(rows, key=lambda row: -row["median_s"])[:limit]
+    print(f"\n| {title} | median [s] |\n|---|---|")
+    for row in rows:
+        print(f"| {row['what']} | {row['median_s']:.3f} |")
+    return rows
+
+
+def main():
+    parser = benchlib.parser(__doc__, repeats=5)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        walls, imports, phases = measure(args.repeats, Path(tmp))
+    print(f"load average {os.getloadavg()[0]:.2f}; medians of {args.repeats}")
+    rows = table("process", walls)
+    rows += table("imports of `parefg run square`, by package", imports, limit=14)
+    rows += table("phases of `parefg run square` (summary.json)", phases)
+    print(f"\nwrote {benchlib.write_csv(args.out, 'bench_startup.csv', rows)}")
+
+
+if __name__ == "__main__":
+    main()
