@@ -2,7 +2,7 @@
 
 Three tables, all from one run of this script (same machine load):
 
-1. Wall time of whole processes (median of --repeats): ``python -c pass``, the import
+1. Wall and CPU time of whole processes (median of --repeats): ``python -c pass``, the import
    floor of a run (numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py initialized,
    mpi4py: the modules ``parefg run square`` cannot do without), ``parefg --help``,
    ``parefg scenes`` and ``parefg run square --quiet`` (default scene, one rank).
@@ -19,6 +19,7 @@ Writes results/bench_startup.csv (one row per measured quantity).
 import collections
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -44,14 +45,20 @@ COMMANDS = {
 }
 
 
-def timed_run(command: list[str], out_dir: Path | None = None) -> tuple[float, str]:
-    """Wall time of one process (its --out in a fresh directory) and its stderr."""
+def timed_run(command: list[str], out_dir: Path | None = None) -> tuple[float, float, str]:
+    """Wall and CPU (user + sys) seconds of one process (its --out in a fresh directory)
+    and its stderr.  CPU time is what the process needs on an idle core: it hardly
+    depends on the machine's load, the wall time does."""
     extra = ["--out", str(out_dir)] if out_dir is not None else []
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     tic = time.perf_counter()
     done = subprocess.run(
         command + extra, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
     )
-    return time.perf_counter() - tic, done.stderr
+    wall = time.perf_counter() - tic
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    return wall, cpu, done.stderr
 
 
 def import_times(stderr: str) -> dict[str, float]:
@@ -68,24 +75,28 @@ def import_times(stderr: str) -> dict[str, float]:
 def measure(repeats: int, workdir: Path):
     """Wall times per command, import times per package, run phases: lists of samples."""
     walls = collections.defaultdict(list)
+    cpus = collections.defaultdict(list)
     imports = collections.defaultdict(list)
     phases = collections.defaultdict(list)
     for r in range(repeats):
         for label, command in COMMANDS.items():
             out = workdir / f"wall-{r}" if label == "parefg run square" else None
-            wall, _ = timed_run(command, out)
+            wall, cpu, _ = timed_run(command, out)
             walls[label].append(wall)
+            cpus[label].append(cpu)
             if out is not None:
                 timings = json.loads((out / "summary.json").read_text())["timings"]
                 for key, value in timings.items():
                     phases[key].append(value)
                 phases["outside the run (wall - total)"].append(wall - timings["total"])
-        _, stderr = timed_run([PYTHON, "-X", "importtime", PAREFG, *RUN_SQUARE], workdir / f"i{r}")
+        _, _, stderr = timed_run(
+            [PYTHON, "-X", "importtime", PAREFG, *RUN_SQUARE], workdir / f"i{r}"
+        )
         per_package = import_times(stderr)
         for package, seconds in per_package.items():
             imports[package].append(seconds)
         imports["(all imports)"].append(sum(per_package.values()))
-    return walls, imports, phases
+    return walls, cpus, imports, phases
 
 
 def table(title: str, samples: dict, limit: int | None = None) -> list[dict]:
@@ -105,9 +116,10 @@ def main():
     parser = benchlib.parser(__doc__, repeats=5)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        walls, imports, phases = measure(args.repeats, Path(tmp))
+        walls, cpus, imports, phases = measure(args.repeats, Path(tmp))
     print(f"load average {os.getloadavg()[0]:.2f}; medians of {args.repeats}")
-    rows = table("process", walls)
+    rows = table("process, wall", walls)
+    rows += table("process, CPU (user + sys)", cpus)
     rows += table("imports of `parefg run square`, by package", imports, limit=14)
     rows += table("phases of `parefg run square` (summary.json)", phases)
     print(f"\nwrote {benchlib.write_csv(args.out, 'bench_startup.csv', rows)}")
