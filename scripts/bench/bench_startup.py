@@ -11,7 +11,8 @@ Three tables, all from one run of this script (same machine load):
 3. The run's own phases (summary.json timings) and the time outside them (interpreter,
    imports, PETSc initialization, exit) = wall - timings.total.
 
-Writes results/bench_startup.csv (one row per measured quantity).
+Writes results/bench_startup.csv (one row per measured quantity).  The commands run as
+``python -m parefg.cli``, so PYTHONPATH=OTHER_TREE measures another checkout (before/after).
 
     .venv/bin/python scripts/bench/bench_startup.py [--repeats 5]
 """
@@ -30,7 +31,8 @@ from pathlib import Path
 import benchlib
 
 PYTHON = sys.executable
-PAREFG = str(Path(sys.executable).with_name("parefg"))
+# `python -m parefg.cli` is the `parefg` script; it honours PYTHONPATH (compare two trees)
+PAREFG = [PYTHON, "-m", "parefg.cli"]
 RUN_SQUARE = ["run", "square", "--quiet"]
 FLOOR = (
     "import numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py; "
@@ -39,9 +41,9 @@ FLOOR = (
 COMMANDS = {
     "python -c pass": [PYTHON, "-c", "pass"],
     "import floor of a run": [PYTHON, "-c", "import parefg; " + FLOOR],
-    "parefg --help": [PAREFG, "--help"],
-    "parefg scenes": [PAREFG, "scenes"],
-    "parefg run square": [PAREFG, *RUN_SQUARE],
+    "parefg --help": [*PAREFG, "--help"],
+    "parefg scenes": [*PAREFG, "scenes"],
+    "parefg run square": [*PAREFG, *RUN_SQUARE],
 }
 
 
