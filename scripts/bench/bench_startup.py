@@ -92,7 +92,7 @@ def measure(repeats: int, workdir: Path):
                     phases[key].append(value)
                 phases["outside the run (wall - total)"].append(wall - timings["total"])
         _, _, stderr = timed_run(
-            [PYTHON, "-X", "importtime", PAREFG, *RUN_SQUARE], workdir / f"i{r}"
+            [PYTHON, "-X", "importtime", *PAREFG[1:], *RUN_SQUARE], workdir / f"i{r}"
         )
         per_package = import_times(stderr)
         for package, seconds in per_package.items():
