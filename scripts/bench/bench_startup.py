@@ -11,6 +11,11 @@ Three tables, all from one run of this script (same machine load):
 3. The run's own phases (summary.json timings) and the time outside them (interpreter,
    imports, PETSc initialization, exit) = wall - timings.total.
 
+4. The fixed costs, in CPU seconds of one fresh process each (robust to the load): the
+   imports a run cannot do without, importing gmsh and meshing the default square (the
+   ``mesh`` phase), and importing numba, its first cached kernel (numba's one-off
+   initialization) and the next one (the ``neighbours`` phase is the first kernel call).
+
 Writes results/bench_startup.csv (one row per measured quantity).  The commands run as
 ``python -m parefg.cli``, so PYTHONPATH=OTHER_TREE measures another checkout (before/after).
 
@@ -47,6 +52,52 @@ COMMANDS = {
 }
 
 
+# Prints "label seconds" lines of process CPU time around each piece of the first phases.
+PIECES = """
+import time
+clock = time.process_time
+tic = clock()
+import numpy as np
+print("numpy import", clock() - tic)
+tic = clock()
+import petsc4py
+import parefg
+petsc4py.init([])
+from petsc4py import PETSc
+from mpi4py import MPI
+print("petsc4py + mpi4py import and PETSc initialization", clock() - tic)
+tic = clock()
+import scipy.sparse, scipy.special
+print("scipy.sparse + scipy.special import", clock() - tic)
+tic = clock()
+import sympy
+print("sympy import", clock() - tic)
+tic = clock()
+import h5py
+print("h5py import", clock() - tic)
+from parefg.geometry import gmsh_mesh
+tic = clock()
+import gmsh
+print("gmsh import", clock() - tic)
+tic = clock()
+cloud = gmsh_mesh.mesh_domain({"shape": "square"}, 0.0625)
+print("gmsh: initialize, mesh h = 1/16, finalize", clock() - tic)
+tic = clock()
+import numba
+print("numba import", clock() - tic)
+from parefg.discretization import mls_kernels
+radius = np.full(len(cloud.coords), 3.2 * 0.0625)
+cells = mls_kernels.build_cells(cloud.coords, radius.max())
+arguments = (cloud.coords, cloud.coords, radius, radius.max(), cells)
+tic = clock()
+mls_kernels.count_neighbours(*arguments)
+print("numba: first cached kernel (initialization)", clock() - tic)
+tic = clock()
+mls_kernels.fill_neighbours(*arguments, 64)
+print("numba: next cached kernel", clock() - tic)
+"""
+
+
 def timed_run(command: list[str], out_dir: Path | None = None) -> tuple[float, float, str]:
     """Wall and CPU (user + sys) seconds of one process (its --out in a fresh directory)
     and its stderr.  CPU time is what the process needs on an idle core: it hardly
@@ -80,6 +131,7 @@ def measure(repeats: int, workdir: Path):
     cpus = collections.defaultdict(list)
     imports = collections.defaultdict(list)
     phases = collections.defaultdict(list)
+    pieces = collections.defaultdict(list)
     for r in range(repeats):
         for label, command in COMMANDS.items():
             out = workdir / f"wall-{r}" if label == "parefg run square" else None
@@ -98,7 +150,12 @@ def measure(repeats: int, workdir: Path):
         for package, seconds in per_package.items():
             imports[package].append(seconds)
         imports["(all imports)"].append(sum(per_package.values()))
-    return walls, cpus, imports, phases
+        for line in subprocess.run(
+            [PYTHON, "-c", PIECES], check=True, capture_output=True, text=True
+        ).stdout.splitlines():
+            label, seconds = line.rsplit(" ", 1)
+            pieces[label].append(float(seconds))
+    return walls, cpus, imports, phases, pieces
 
 
 def table(title: str, samples: dict, limit: int | None = None) -> list[dict]:
@@ -118,12 +175,13 @@ def main():
     parser = benchlib.parser(__doc__, repeats=5)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        walls, cpus, imports, phases = measure(args.repeats, Path(tmp))
+        walls, cpus, imports, phases, pieces = measure(args.repeats, Path(tmp))
     print(f"load average {os.getloadavg()[0]:.2f}; medians of {args.repeats}")
     rows = table("process, wall", walls)
     rows += table("process, CPU (user + sys)", cpus)
     rows += table("imports of `parefg run square`, by package", imports, limit=14)
     rows += table("phases of `parefg run square` (summary.json)", phases)
+    rows += table("fixed costs, CPU of one fresh process", pieces)
     print(f"\nwrote {benchlib.write_csv(args.out, 'bench_startup.csv', rows)}")
 
 
