@@ -19,18 +19,19 @@ differentiating: with p_c(y) = p((y - c) / R),
 
 Two interchangeable backends compute the same numbers (see :data:`BACKENDS`):
 ``"numba"`` runs the compiled per-point kernels of :mod:`parefg.discretization.mls_kernels`
-(cell-list search, Cholesky of A); ``"numpy"`` is vectorized over points (k-d
-tree search, padded neighbour lists, batched dense linear algebra) and serves
-as the reference and as the fallback when numba or a compiled weight is missing.
+(Cholesky of A); ``"numpy"`` is vectorized over points (padded neighbour lists,
+batched dense linear algebra) and serves as the reference and as the fallback when
+numba or a compiled weight is missing.  The neighbour lists come from
+:mod:`parefg.discretization.neighbours` (cell list or k-d tree, the same lists).
 """
 
 import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from parefg.discretization import mls_kernels
+from parefg.discretization.neighbours import NeighbourSearch
 from parefg.discretization.weights import DEFAULT_WEIGHT, get_weight
 from parefg.errors import InputError
 from parefg.geometry.cloud import DIM
@@ -170,13 +171,8 @@ class MLS:
         self.n_basis = n_basis(self.degree)
         self.weight = get_weight(weight)
         self.support_factor = support_factor
-        self.max_radius = float(self.support_radius.max())
-        self.tree = cKDTree(self.nodes)
         self.backend = self._choose_backend(backend)
-        # Cell list for the compiled neighbour search (None for numpy).
-        self.cells = None
-        if self.backend == "numba":
-            self.cells = mls_kernels.build_cells(self.nodes, self.max_radius)
+        self.search = NeighbourSearch(self.nodes, self.support_radius, self.backend)
 
     def _choose_backend(self, backend):
         """The backend to use: the requested one, or the first usable one of BACKENDS."""
@@ -220,62 +216,14 @@ class MLS:
     def find_neighbours(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Padded lists of the nodes I with |x - x_I| < d_I, nearest first.
 
+        See :meth:`parefg.discretization.neighbours.NeighbourSearch.find`.
+
         Returns
         -------
         neighbours : ndarray of int64, shape (n_points, n_max)
         mask : ndarray of bool, shape (n_points, n_max)
         """
-        if len(points) == 0:
-            return np.zeros((0, 0), dtype=np.int64), np.zeros((0, 0), dtype=bool)
-        if self.backend == "numba":
-            arguments = (points, self.nodes, self.support_radius, self.max_radius, self.cells)
-            n_max = max(int(mls_kernels.count_neighbours(*arguments).max()), 1)
-            return mls_kernels.fill_neighbours(*arguments, n_max)
-        # The largest radius bounds every support: candidates within it ...
-        distance, index = self._candidates(points)
-        found = index < len(self.nodes)
-        index = np.where(found, index, 0).astype(np.int64)
-        # ... then keep the nodes whose own support covers the point, in front.
-        mask = found & (distance < self.support_radius[index])
-        order = np.argsort(~mask, axis=1, kind="stable")
-        n_max = max(int(mask.sum(axis=1).max()), 1)
-        neighbours = np.take_along_axis(index, order, axis=1)[:, :n_max]
-        mask = np.take_along_axis(mask, order, axis=1)[:, :n_max]
-        return np.where(mask, neighbours, neighbours[:, :1]), mask
-
-    def _candidates(self, points):
-        """Nodes within the largest support radius of each point, nearest first.
-
-        The padding width k is guessed from a sample of points and doubled for the
-        rows that come back full, so no row loses a node.
-
-        Returns
-        -------
-        distance : ndarray, shape (n_points, k); inf at missing entries
-        index : ndarray of int, shape (n_points, k); n_nodes at missing entries
-        """
-        n_nodes = len(self.nodes)
-        sample = points[:: max(1, len(points) // 256)]
-        counts = self.tree.query_ball_point(sample, r=self.max_radius, return_length=True)
-        k = min(n_nodes, int(1.25 * np.max(counts)) + 1)
-        distance, index = self._query(points, k)  # (n_points, k)
-        full = index[:, -1] < n_nodes
-        while full.any() and k < n_nodes:
-            k = min(n_nodes, 2 * k)
-            wider_distance, wider_index = self._query(points[full], k)
-            distance = np.pad(
-                distance, ((0, 0), (0, k - distance.shape[1])), constant_values=np.inf
-            )
-            index = np.pad(index, ((0, 0), (0, k - index.shape[1])), constant_values=n_nodes)
-            distance[full], index[full] = wider_distance, wider_index
-            full[full] = wider_index[:, -1] < n_nodes
-        return distance, index
-
-    def _query(self, points, k):
-        """k nearest nodes within the largest support radius, (n_points, k) each."""
-        return self.tree.query(
-            points, k=list(range(1, k + 1)), distance_upper_bound=self.max_radius
-        )
+        return self.search.find(points)
 
     def _weights(self, points, neighbours, mask):
         """Weights w_I(x), their gradients dw_I/dx, offsets x_I - x and the basis scale R."""

@@ -33,10 +33,15 @@ WEIGHT_CODES = {name: weight.code for name, weight in WEIGHTS.items() if weight.
 
 
 def _jit(function):
-    """Compile with numba when it is installed (no fastmath: results must match numpy)."""
+    """Compile with numba when it is installed (no fastmath: results must match numpy).
+
+    error_model="numpy": a division is the bare IEEE operation, without the zero-divisor
+    test and branch that Python semantics put before each one (no divisor here can be
+    zero: radii, scales and accepted Cholesky pivots are positive).
+    """
     if numba is None:  # pragma: no cover
         return function
-    return numba.njit(cache=True, fastmath=False, nogil=True)(function)
+    return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy")(function)
 
 
 # (W(r), dW/dr) of the weight with the given code (Weight.code); both 0 for r >= 1.

@@ -12,26 +12,22 @@ Derived data stay out of ``params`` (they follow from ``[exact]``), so loading
 the effective scene again gives the same scene.
 """
 
+from __future__ import annotations
+
 import copy
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from parefg.errors import InputError
-from parefg.scene.checks import SignChecks
-from parefg.scene.fields import (
-    BoundaryCondition,
-    Field,
-    boundary_condition,
-    initial_field,
-    scene_expressions,
-    vector_field,
-)
-from parefg.scene.manufactured import ExactSolution, ManufacturedSolution, initial_elasticity
 from parefg.scene.schema import PENALTY_KINDS, elastic_constants, plain_name, step_count, validate
-from parefg.scene.symbolic import DerivativeBudget
 from parefg.timestepping.schemes import SCHEMES
+
+if TYPE_CHECKING:  # the expression modules import sympy: loaded by _build, when needed
+    from parefg.scene.fields import BoundaryCondition, Field
+    from parefg.scene.manufactured import ExactSolution
 
 SCENES_DIR = Path(__file__).with_name("builtin")
 MAX_SCENE_BYTES = 2**24  # a scene is a few hundred bytes; a long polygon a few hundred KB
@@ -183,12 +179,18 @@ _DISCRETIZATION_FIELDS = ("h", "degree", "weight", "support", "quadrature", "cel
 
 def _build(where: str, params: dict, part_names: list[str], source_dir: Path) -> Scene:
     """Turn validated params into a Scene with callables."""
+    # sympy (~1/3 s to import) only where expressions are compiled: not for `parefg scenes`
+    from parefg.scene import fields
+    from parefg.scene.checks import SignChecks
+    from parefg.scene.manufactured import ManufacturedSolution, initial_elasticity
+    from parefg.scene.symbolic import DerivativeBudget
+
     discretization, time = params["discretization"], params["time"]
     E, nu, lam, mu = elastic_constants(params["material"])
     rho = params["material"]["rho"]
     manufactured = None
     if "exact" in params:
-        exact_u = scene_expressions(where, "exact.u", params["exact"]["u"])
+        exact_u = fields.scene_expressions(where, "exact.u", params["exact"]["u"])
         derivatives = DerivativeBudget(where, "exact.u")
         dynamic = SCHEMES[time["scheme"]].dynamic
         manufactured = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
@@ -215,12 +217,14 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         n_steps=step_count(where, time),
         **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS},
         boundaries={
-            name: boundary_condition(where, name, table, manufactured, checks)
+            name: fields.boundary_condition(where, name, table, manufactured, checks)
             for name, table in params.get("boundary", {}).items()
         },
-        body_force=vector_field(where, "loads.f", params["loads"].get("f"), manufactured, "f"),
-        initial_u=initial_field(where, "u", params["initial"].get("u"), manufactured),
-        initial_v=initial_field(where, "v", params["initial"].get("v"), manufactured),
+        body_force=fields.vector_field(
+            where, "loads.f", params["loads"].get("f"), manufactured, "f"
+        ),
+        initial_u=fields.initial_field(where, "u", params["initial"].get("u"), manufactured),
+        initial_v=fields.initial_field(where, "v", params["initial"].get("v"), manufactured),
         initial_grad=initial_grad,
         initial_div_stress=initial_div_stress,
         exact=manufactured.solution() if manufactured else None,

@@ -1,9 +1,12 @@
 """Benchmark: cost of a contact time step relative to its floor, one reused-factorization solve.
 
 For each case (square scene, SPEC 6), run the time loop and record each step's solve
-time; then time a single solve with the step operator's existing factorization (the
-floor of any step). Prints medians over the steps and repeats, the ratio step / floor,
-Newton iterations and factorizations; writes results/bench_step_np<P>.csv.
+time and whole-step time (loads, predictor, solve, update, energies, checks); then time
+a single solve with the step operator's existing factorization (the floor of any step),
+one product with the step operator (the unit of a residual evaluation) and one
+evaluation of the loads F(t) (expressions at every quadrature point, integrated).
+Prints medians over the steps and repeats, the ratios step / floor, Newton iterations
+and factorizations; writes results/bench_step_np<P>.csv.
 
     .venv/bin/python scripts/bench/bench_step.py [--repeats 3]
     mpirun -n 2 .venv/bin/python scripts/bench/bench_step.py
@@ -33,25 +36,37 @@ CASES = [
 ]
 
 
+def median_call(comm, function, repeats=5):
+    """Median wall time of ``function()`` over ``repeats`` calls, all ranks in step."""
+    times = []
+    for _ in range(repeats):
+        comm.Barrier()
+        tic = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - tic)
+    return statistics.median(times)
+
+
 def step_times(comm, overrides):
-    """Per-step solve times, the floor (one solve with the reused factor), counts."""
+    """Per-step solve and whole-step times, the floor (one solve with the reused factor),
+    and the unit costs outside the solve (one operator product, one load evaluation)."""
     sim = prepare(comm, "square", overrides)
     scene = sim.scene
-    state, times = sim.start(), []
+    state, solves, steps = sim.start(), [], []
     for n in range(1, scene.n_steps + 1):
-        before = sim.timings["solve"]
+        before, tic = sim.timings["solve"], time.perf_counter()
         state = sim.step(state, n)
-        times.append(sim.timings["solve"] - before)
+        steps.append(time.perf_counter() - tic)
+        solves.append(sim.timings["solve"] - before)
     ksp = sim.solver.snes.getKSP()
     rhs, x = sim.a_const.createVecs()
     rhs.set(1.0)
-    floor = []
-    for _ in range(5):
-        comm.Barrier()
-        tic = time.perf_counter()
-        ksp.solve(rhs, x)
-        floor.append(time.perf_counter() - tic)
-    return times, statistics.median(floor), sim
+    units = {
+        "floor": median_call(comm, lambda: ksp.solve(rhs, x)),
+        "mult": median_call(comm, lambda: sim.a_const.mult(rhs, x)),
+        "forces": median_call(comm, lambda: sim.external_forces(scene.T, x)),
+    }
+    return solves, steps, units, sim
 
 
 def main():
@@ -60,12 +75,14 @@ def main():
     comm = MPI.COMM_WORLD
     rows = []
     for label, overrides in CASES:
-        steps, floors = [], []
+        solves, steps, units = [], [], {"floor": [], "mult": [], "forces": []}
         for _ in range(args.repeats):
-            times, floor, sim = step_times(comm, overrides)
-            steps += times
-            floors.append(floor)
-        step, floor = statistics.median(steps), statistics.median(floors)
+            run_solves, run_steps, run_units, sim = step_times(comm, overrides)
+            solves += run_solves
+            steps += run_steps
+            for key, value in run_units.items():
+                units[key].append(value)
+        step, floor = statistics.median(solves), statistics.median(units["floor"])
         rows.append(
             {
                 "case": label,
@@ -73,6 +90,10 @@ def main():
                 "median_step_s": step,
                 "floor_solve_s": floor,
                 "ratio": step / floor,
+                "median_whole_step_s": statistics.median(steps),
+                "whole_ratio": statistics.median(steps) / floor,
+                "operator_mult_s": statistics.median(units["mult"]),
+                "load_evaluation_s": statistics.median(units["forces"]),
                 "newton_per_step": sim.newton_iterations / sim.scene.n_steps,
                 "factorizations": sim.solver.factorizations,
                 "steps": sim.scene.n_steps,
@@ -81,14 +102,17 @@ def main():
     if comm.rank == 0:
         print(f"ranks {comm.size}; medians over all steps of {args.repeats} runs\n")
         print(
-            "| case | DOFs | step [ms] | floor solve [ms] | step / floor | Newton per step "
-            "| factorizations / steps |"
+            "| case | DOFs | solve part of a step [ms] | whole step [ms] | floor solve [ms] "
+            "| solve / floor | whole / floor | operator mult [ms] | load F(t) [ms] "
+            "| Newton per step | factorizations / steps |"
         )
-        print("|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             print(
                 f"| {r['case']} | {r['dofs']} | {1e3 * r['median_step_s']:.2f} | "
-                f"{1e3 * r['floor_solve_s']:.2f} | {r['ratio']:.2f} | {r['newton_per_step']:.2f} "
+                f"{1e3 * r['median_whole_step_s']:.2f} | {1e3 * r['floor_solve_s']:.2f} | "
+                f"{r['ratio']:.2f} | {r['whole_ratio']:.2f} | {1e3 * r['operator_mult_s']:.2f} | "
+                f"{1e3 * r['load_evaluation_s']:.2f} | {r['newton_per_step']:.2f} "
                 f"| {r['factorizations']} / {r['steps']} |"
             )
         benchlib.write_csv(args.out, f"bench_step_np{comm.size}.csv", rows)

@@ -1,0 +1,41 @@
+"""Light commands stay light: ``import parefg.cli``, ``parefg --help`` and ``parefg scenes``
+import none of the heavy layers a run needs (sympy, matplotlib, h5py, numba, gmsh).
+
+Each case runs in a fresh interpreter (``sys.modules`` of this one is full of them) and
+prints, as its last line, the heavy modules it ended up with.
+"""
+
+import subprocess
+import sys
+
+import pytest
+from conftest import mpi_env
+
+HEAVY = ("sympy", "matplotlib", "h5py", "numba", "gmsh")
+PROBE = """
+import sys
+from parefg import cli
+argv = {argv!r}
+code = 0
+if argv is not None:
+    try:
+        code = cli.main(argv)
+    except SystemExit as exit:
+        code = exit.code
+print(" ".join(sorted(name for name in {heavy!r} if name in sys.modules)))
+sys.exit(code or 0)
+"""
+
+
+@pytest.mark.serial_only
+@pytest.mark.parametrize("argv", [None, ["--help"], ["scenes"]], ids=["import", "help", "scenes"])
+def test_light_commands_import_no_heavy_module(argv):
+    probe = PROBE.format(argv=argv, heavy=HEAVY)
+    result = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, env=mpi_env(), timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    if argv == ["scenes"]:  # the command itself worked: it listed the default scene
+        assert any(line.startswith("square ") for line in lines), result.stdout
+    assert lines[-1] == "", f"imported {lines[-1]}"
