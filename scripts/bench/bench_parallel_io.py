@@ -6,7 +6,7 @@ and started; then, with the fields of the initial state computed once, it times
 and ``read_checkpoint``, each the median of --repeats calls.  Every call runs on a
 communicator that counts the bytes rank 0 receives from the other ranks through mpi4py
 (pickled gather / allgather / bcast / allreduce and the buffer Gather(v) / Allgather(v) /
-Alltoall(v) / Bcast), and tracemalloc gives rank 0's peak Python/numpy allocation above
+Alltoall(v) / Bcast; also the most any rank receives), and tracemalloc gives rank 0's peak Python/numpy allocation above
 what it held before the call.  Byte counts leave out what the MPI-IO library moves
 between ranks inside a collective write (ROMIO/OMPIO two-phase I/O, bounded by its
 collective buffer).  Prints a table and writes results/bench_parallel_io_np<P>.csv.
@@ -121,9 +121,12 @@ def measured(comm: CountingComm, task, repeats: int) -> dict:
         peaks.append(tracemalloc.get_traced_memory()[1] - held)
         tracemalloc.stop()
         received.append(comm.received - before)
+    world = MPI.COMM_WORLD  # not counted
+    most_received = world.allreduce(statistics.median(received), op=MPI.MAX)
     return {
         "ms": 1e3 * statistics.median(seconds),
         "rank0_received_mb": statistics.median(received) / 2**20,
+        "max_received_mb": most_received / 2**20,
         "rank0_peak_mb": statistics.median(peaks) / 2**20,
     }
 
@@ -147,8 +150,10 @@ def main():
     parser = benchlib.parser(__doc__, repeats=5)
     parser.add_argument("--h", type=float, default=1 / 223, help="node spacing")
     args = parser.parse_args()
+    # PETSc takes no Comm subclass: the run is set up on COMM_WORLD, the I/O counts
     comm = CountingComm(MPI.COMM_WORLD)
-    sim = prepare(comm, "square", [f"discretization.h={args.h!r}", "discretization.degree=1"])
+    world = MPI.COMM_WORLD
+    sim = prepare(world, "square", [f"discretization.h={args.h!r}", "discretization.degree=1"])
     state = sim.start()
     node_fields, contact_fields = output_fields(sim, state)
     field_mb = sum(np.asarray(v).nbytes for v in node_fields.values()) / 2**20
@@ -180,12 +185,13 @@ def main():
             f"{sim.disc.n_contact} contact points; node fields {field_mb:.1f} MiB per output; "
             f"median of {args.repeats}\n"
         )
-        print("| operation | time [ms] | bytes to rank 0 [MiB] | rank 0 peak alloc [MiB] |")
-        print("|---|---|---|---|")
+        header = "| operation | time [ms] | bytes to rank 0 [MiB] | most to one rank [MiB] "
+        print(header + "| rank 0 peak alloc [MiB] |")
+        print("|---|---|---|---|---|")
         for r in rows:
             print(
                 f"| {r['operation']} | {r['ms']:.1f} | {r['rank0_received_mb']:.2f} | "
-                f"{r['rank0_peak_mb']:.2f} |"
+                f"{r['max_received_mb']:.2f} | {r['rank0_peak_mb']:.2f} |"
             )
         for r in rows:
             r.update(ranks=comm.size, n_dofs=sim.disc.n_dofs)
