@@ -7,9 +7,10 @@ and ``read_checkpoint``, each the median of --repeats calls.  Every call runs on
 communicator that counts the bytes rank 0 receives from the other ranks through mpi4py
 (pickled gather / allgather / bcast / allreduce and the buffer Gather(v) / Allgather(v) /
 Alltoall(v) / Bcast; also the most any rank receives), and tracemalloc gives rank 0's
-peak Python/numpy allocation above what it held before the call.  Byte counts leave out what the MPI-IO library moves
-between ranks inside a collective write (ROMIO/OMPIO two-phase I/O, bounded by its
-collective buffer).  Prints a table and writes results/bench_parallel_io_np<P>.csv.
+peak Python/numpy allocation above what it held before the call.  Byte counts leave
+out what the MPI-IO library moves between ranks inside a collective write (ROMIO/OMPIO
+two-phase I/O, bounded by its collective buffer).  Prints a table and writes
+results/bench_parallel_io_np<P>.csv.
 
     nice .venv/bin/python scripts/bench/bench_parallel_io.py
     mpirun -n 2 nice .venv/bin/python scripts/bench/bench_parallel_io.py
