@@ -58,10 +58,10 @@ class ResultWriter:
     """Collective writer of ``result.h5`` and ``result.xdmf`` in ``out_dir``.
 
     The HDF5 file is opened with h5py's MPI-IO driver on more than one rank and with the
-    default driver on one rank.  Each point array is written by all ranks together, every rank one
-    hyperslab: the block of file rows as large as its share of the points, filled from the
-    other ranks by one Alltoallv (:class:`~parefg.io.rows.BlockRows`; no rank holds more
-    than its share, nothing is gathered to rank 0).  Dataset
+    default driver on one rank.  Each point array is written by all ranks together, every
+    rank one hyperslab: the block of file rows as large as its share of the points, filled
+    from the other ranks by one Alltoallv (:class:`~parefg.io.rows.BlockRows`; no rank
+    holds more than its share, nothing is gathered to rank 0).  Dataset
     creation, resizing, attributes and flushes are collective: every rank makes the same
     calls. Values that must agree across ranks (metadata, history rows, step and time) are
     taken from rank 0.

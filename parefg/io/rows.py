@@ -5,9 +5,10 @@ index in the input cloud, Gamma_C points by their global row), while a rank's po
 scattered over that order (the partition renumbers them).  Rank r reads and writes the
 contiguous block ``blocks[r]:blocks[r + 1]`` of the file rows, as large as its own share of
 the points (the PETSc ownership: blocks follow the ranks' counts), so every HDF5 transfer is
-one hyperslab per rank (independent MPI-IO: :data:`COLLECTIVE_TRANSFERS`).  The values between a rank's points and its block move
-with one ``Alltoallv`` per array: a rank sends and receives at most its own share, and no
-rank ever holds more than its share (nothing is gathered to rank 0).
+one hyperslab per rank (independent MPI-IO: :data:`COLLECTIVE_TRANSFERS`).  The values
+between a rank's points and its block move with one ``Alltoallv`` per array: a rank sends
+and receives at most its own share, and no rank ever holds more than its share (nothing
+is gathered to rank 0).
 """
 
 from __future__ import annotations
