@@ -20,10 +20,11 @@ from mpi4py import MPI
 from parefg.parallel import raise_unless_everywhere
 
 # Each rank's rows are one contiguous hyperslab, which independent MPI-IO writes in one
-# request.  Collective transfers (two-phase I/O) were measured 100x slower on this machine
-# (scripts/bench/bench_parallel_io.py, 2 ranks, 52k DOFs, loaded: 4.5 s against 44 ms per
-# output).  File and dataset creation, resizes, attributes, flush and close stay
-# collective (HDF5 requires it); every rank still makes every transfer call.
+# request; two-phase collective transfers add a synchronisation and gain nothing for it.
+# (Timings on the loaded machine of this change were dominated by its load: the same code
+# took 0.04-5 s per output, scripts/bench/bench_parallel_io.py; not a measured speed-up.)
+# File and dataset creation, resizes, attributes, flush and close stay collective (HDF5
+# requires it); every rank still makes every transfer call.
 COLLECTIVE_TRANSFERS = False
 
 
