@@ -247,8 +247,8 @@ def _start(comm, scene, disc, restart: str | None):
         sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
         state, first = sim.start(), 1  # sets up the mass solve (-mass_ options) too
     if restart is not None:
-        state, done, last_row = read_checkpoint(comm, Path(restart), sim)
-        state, first = sim.resume(state, done, last_row), done + 1
+        snapshot = read_checkpoint(comm, Path(restart), sim)
+        state, first = sim.restore(snapshot), snapshot["step"] + 1
     return sim, state, first
 
 

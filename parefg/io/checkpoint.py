@@ -3,10 +3,14 @@
 A checkpoint holds everything the loop needs to continue: the nodal parameters u, v, a,
 the accumulated slip xi and the step's normal force C_n at the Gamma_C points, the step
 number and the last per-step row (running sums of dissipation and external work).
-Arrays are stored in the global, rank-independent order (nodes by their original index,
-Gamma_C points by their global row), so a run may restart on a different number of
-ranks.  Rank 0 writes the file (gathered arrays) to a temporary name and renames it, so a
-crash during writing never destroys the previous checkpoint.
+The state comes from :meth:`Simulation.snapshot` and goes back through
+:meth:`Simulation.restore`.  Arrays are stored in the global, rank-independent order
+(nodes by their original index, Gamma_C points by their global row), so a run may restart
+on a different number of ranks.  Every rank writes and reads one block of rows of each
+array, collectively (:class:`~parefg.io.rows.BlockRows`): nothing is gathered to rank 0
+nor broadcast back, and no rank holds more than its share.  The file is written to a
+temporary name that rank 0 renames once every rank has closed it, so a crash during
+writing never destroys the previous checkpoint.
 
 A checkpoint is valid only for the scene that wrote it.  It carries the effective scene
 (``params_json``) and its fingerprint, a SHA-256 of the params that determine the
@@ -29,12 +33,15 @@ from typing import Any
 
 import h5py
 import numpy as np
+from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.parallel import call_on_root, gather_rows
-from parefg.timestepping.schemes import State
+from parefg.io.hdf5 import open_h5
+from parefg.io.rows import BlockRows
+from parefg.parallel import call_on_root, raise_everywhere, raise_unless_everywhere
 
 VECTORS = ("u", "v", "a")
+CONTACT_ARRAYS = ("slip", "contact_level")  # at the Gamma_C points, with a contact boundary
 FORMAT = "parefg-checkpoint"
 NODE_TOLERANCE = 1e-9  # relative to the domain's extent: same mesh up to gmsh's round-off
 # params that may differ between the run that wrote a checkpoint and its restart
@@ -58,67 +65,81 @@ def scene_fingerprint(params: dict) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-def write_checkpoint(comm, path: Path, sim, state: State, step: int) -> None:
+def write_checkpoint(comm, path: Path, sim, state, step: int) -> None:
     """Write the loop state after ``step`` to ``path`` (atomically).  Collective."""
-    disc = sim.disc
-    node_rows = disc.nodes.rows
-    arrays = {
-        name: gather_rows(
-            comm, node_rows, getattr(state, name).getArray().reshape(-1, 2), disc.n_nodes
-        )
-        for name in VECTORS
-    }
-    if sim.law is not None:
-        arrays["slip"] = gather_rows(comm, disc.contact.rows, sim.law.slip, disc.n_contact)
-        # the step's normal force C_n that a_n holds (parefg.mechanics.contact.end_level)
-        arrays["contact_level"] = gather_rows(
-            comm, disc.contact.rows, sim.law.level_pressure, disc.n_contact
-        )
-    arrays["nodes"] = gather_rows(comm, node_rows, disc.nodes.points, disc.n_nodes)
+    snapshot = sim.snapshot(state, step)
+    attributes = comm.bcast(
+        {
+            "format": FORMAT,
+            "step": step,
+            "params_json": json.dumps(sim.scene.params, default=float),
+            "scene_fingerprint": scene_fingerprint(sim.scene.params),
+            "history_json": json.dumps(snapshot["history"]),
+        },
+        root=0,
+    )
+    partial = path.with_name(path.name + ".partial")
+    with open_h5(comm, partial, "w") as handle:
+        for name, rows in _layout(comm, sim):
+            values = sim.disc.nodes.points if name == "nodes" else snapshot[name]
+            values = np.asarray(values, dtype=np.float64)
+            shape = (rows.n_global, *values.shape[1:])
+            dataset = handle.create_dataset(name, shape=shape, dtype=np.float64)
+            rows.write(dataset, values)
+        handle.attrs.update(attributes)
+    error = None
     if comm.rank == 0:
-        partial = path.with_name(path.name + ".partial")
-        with h5py.File(partial, "w") as handle:
-            for name, values in arrays.items():
-                handle.create_dataset(name, data=values)
-            handle.attrs["format"] = FORMAT
-            handle.attrs["step"] = step
-            handle.attrs["params_json"] = json.dumps(sim.scene.params, default=float)
-            handle.attrs["scene_fingerprint"] = scene_fingerprint(sim.scene.params)
-            handle.attrs["history_json"] = json.dumps(sim.history[-1])
-        os.replace(partial, path)
-    comm.Barrier()
+        try:
+            os.replace(partial, path)
+        except OSError as failure:
+            error = OSError(f"cannot write the checkpoint {path}: {_reason(failure)}")
+    raise_everywhere(comm, error, root=0)
 
 
-def read_checkpoint(comm, path: Path, sim) -> tuple[State, int, dict]:
-    """Restore the loop state from ``path``; returns (state, step, last table row).  Collective.
-
-    Rank 0 reads and validates the file (:func:`load_checkpoint`) and broadcasts the
-    verdict, so a bad checkpoint raises the same InputError on every rank.  ``sim`` must
-    have been started (``sim.start()``), which sets the shapes to check against.
-    """
+def _layout(comm, sim) -> list[tuple[str, BlockRows]]:
+    """(dataset name, rows) of every array of a checkpoint of ``sim``.  Collective."""
     disc = sim.disc
-    nodes = gather_rows(comm, disc.nodes.rows, disc.nodes.points, disc.n_nodes)
-    data = call_on_root(comm, load_checkpoint, path, sim, nodes)
-    vectors = {}
-    for name in VECTORS:
-        vec = disc.create_vec()
-        vec.setArray(data[name][disc.nodes.rows].ravel())
-        vectors[name] = vec
+    node_rows = BlockRows(comm, disc.nodes.rows, disc.n_nodes, "node")
+    layout = [(name, node_rows) for name in (*VECTORS, "nodes")]
     if sim.law is not None:
-        sim.law.set_time(data["step"] * sim.scheme.k)
-        sim.law.slip = data["slip"][disc.contact.rows].copy()
-        sim.law.level_pressure = data["contact_level"][disc.contact.rows].copy()
-    return State(**vectors), data["step"], data["history"]
+        contact_rows = BlockRows(comm, disc.contact.rows, disc.n_contact, "contact")
+        layout += [(name, contact_rows) for name in CONTACT_ARRAYS]
+    return layout
 
 
-def load_checkpoint(path: Path, sim, nodes: np.ndarray) -> dict:
-    """Read and validate a checkpoint for ``sim``'s scene (one rank; not collective).
+def read_checkpoint(comm, path: Path, sim) -> dict:
+    """The snapshot stored in ``path``, this rank's part, for :meth:`Simulation.restore`.
 
-    ``nodes`` (n_nodes, 2) are the scene's node coordinates in the global order: the
-    checkpoint's must match (a changed .geo file or gmsh version moves the nodes).
+    Rank 0 validates the file's attributes and dataset shapes (:func:`check_checkpoint`)
+    and broadcasts the verdict, so a bad checkpoint raises the same InputError on every
+    rank.  Then every rank reads the block of rows its share covers, collectively, and
+    the rows move to the ranks that own them; the values (finite) and the node positions
+    (the same cloud) are checked on each rank's own part.  ``sim`` must have been started
+    (``sim.start()``), which sets the shapes to check against.  Collective.
+    """
+    where = f"--restart {_shown(path)}"
+    attrs = call_on_root(comm, check_checkpoint, path, sim)
+    snapshot: dict[str, Any] = dict(step=attrs["step"], history=attrs["history"])
+    snapshot["time"] = attrs["step"] * sim.scheme.k
+    with open_h5(comm, path, "r") as handle:
+        for name, rows in _layout(comm, sim):
+            values = rows.read(handle[name]).astype(float, copy=False)
+            finite = bool(np.all(np.isfinite(values)))
+            message = f"{where}: checkpoint dataset {name!r} holds non-finite values"
+            raise_unless_everywhere(comm, finite, InputError(message))
+            if name == "nodes":
+                _check_nodes(comm, where, values, sim.disc.nodes.points, sim.disc.nodes.rows)
+            else:
+                snapshot[name] = values
+    return snapshot
 
-    Returns the arrays (``u``, ``v``, ``a``, ``slip``, ``contact_level`` with contact),
-    ``step`` and ``history`` (the last table row).  Raises InputError naming what is wrong.
+
+def check_checkpoint(path: Path, sim) -> dict:
+    """Validate a checkpoint for ``sim``'s scene without reading its arrays (one rank).
+
+    Checks the file type, the format mark, the attributes (scene fingerprint, step, last
+    table row) and the shape and type of every dataset.  Returns ``step`` and ``history``
+    (the last table row).  Raises InputError naming what is wrong.
     """
     where = f"--restart {_shown(path)}"
     _check_regular_file(where, path)
@@ -130,13 +151,11 @@ def load_checkpoint(path: Path, sim, nodes: np.ndarray) -> dict:
             _check_scene(where, attrs["params"], sim.scene.params)
             _check_step(where, attrs["step"], sim.scene.n_steps)
             _check_history(where, attrs["history"], sim.history[0], attrs["step"] * sim.scene.dt)
-            shapes = _expected_shapes(sim)
-            data = {name: _read_array(where, handle, name, shape) for name, shape in shapes.items()}
-            _check_nodes(where, data.pop("nodes"), nodes)
+            for name, shape in _expected_shapes(sim).items():
+                _check_dataset(where, handle, name, shape)
     except (OSError, RuntimeError, TypeError, ValueError) as error:  # not HDF5, truncated
         raise InputError(f"{where}: not a readable parefg checkpoint ({_reason(error)})") from None
-    data.update(step=attrs["step"], history=attrs["history"])
-    return data
+    return dict(step=attrs["step"], history=attrs["history"])
 
 
 def _shown(path: Path) -> str:
@@ -200,8 +219,8 @@ def _expected_shapes(sim) -> dict[str, tuple]:
     return shapes
 
 
-def _read_array(where: str, handle, name: str, shape: tuple) -> np.ndarray:
-    """Dataset ``name``: present, a finite float array of exactly ``shape``."""
+def _check_dataset(where: str, handle, name: str, shape: tuple) -> None:
+    """Dataset ``name``: present, a float array of exactly ``shape``."""
     dataset = handle.get(name)
     if not isinstance(dataset, h5py.Dataset):
         raise InputError(f"{where}: checkpoint lacks the dataset {name!r}")
@@ -210,22 +229,27 @@ def _read_array(where: str, handle, name: str, shape: tuple) -> np.ndarray:
             f"{where}: checkpoint dataset {name!r} is {dataset.dtype} {dataset.shape}, the "
             f"scene needs float {shape}; restart with the scene that wrote it"
         )
-    values = dataset[...].astype(float)
-    if not np.all(np.isfinite(values)):
-        raise InputError(f"{where}: checkpoint dataset {name!r} holds non-finite values")
-    return values
 
 
-def _check_nodes(where: str, stored: np.ndarray, nodes: np.ndarray) -> None:
-    """The same node cloud, to round-off relative to the domain's extent."""
-    extent = np.ptp(nodes, axis=0).max()
-    moved = np.abs(stored - nodes).max(axis=1)
-    if np.any(moved > NODE_TOLERANCE * extent):
-        first = int(np.argmax(moved > NODE_TOLERANCE * extent))
-        raise InputError(
-            f"{where}: node {first} is at {_point(stored[first])} in the checkpoint, at "
-            f"{_point(nodes[first])} now: another node cloud (changed .geo file or gmsh?)"
+def _check_nodes(comm, where: str, stored: np.ndarray, nodes: np.ndarray, rows) -> None:
+    """The same node cloud, to round-off relative to the domain's extent.  Collective.
+
+    Each rank compares its own nodes; the message names the first moved node of the file.
+    """
+    local = np.concatenate([-nodes.min(axis=0, initial=np.inf), nodes.max(axis=0, initial=-np.inf)])
+    bounds = np.empty(4)  # -x_min, -y_min, x_max, y_max over all ranks
+    comm.Allreduce(local, bounds, op=MPI.MAX)
+    extent = np.max(bounds[2:] + bounds[:2])
+    moved = np.abs(stored - nodes).max(axis=1, initial=0.0) > NODE_TOLERANCE * extent
+    first = comm.allreduce(int(np.min(rows[moved], initial=np.iinfo(np.int64).max)), op=MPI.MIN)
+    error = None
+    if moved.any() and first in rows[moved]:
+        here = int(np.flatnonzero(rows == first)[0])
+        error = InputError(
+            f"{where}: node {first} is at {_point(stored[here])} in the checkpoint, at "
+            f"{_point(nodes[here])} now: another node cloud (changed .geo file or gmsh?)"
         )
+    raise_everywhere(comm, error)
 
 
 def _point(xy: np.ndarray) -> str:

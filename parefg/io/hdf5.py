@@ -1,8 +1,8 @@
-"""HDF5 plumbing of ``result.h5``: rows of distributed point sets, layouts, attributes.
+"""HDF5 plumbing of ``result.h5``: opening, layouts, growing columns, attributes.
 
-Rows of point arrays follow a global, rank-independent order; each rank writes its own
-rows (independent I/O with h5py's MPI-IO driver on more than one rank).  See
-:mod:`parefg.io.output` for the file layout.
+Rows of point arrays follow a global, rank-independent order; each rank writes one block
+of them collectively (:mod:`parefg.io.rows`, h5py's MPI-IO driver on more than one rank).
+See :mod:`parefg.io.output` for the file layout.
 """
 
 from __future__ import annotations
@@ -22,54 +22,6 @@ GROWING_FLOATS = dict(maxshape=(None,), dtype=np.float64, chunks=(256,), fillval
 # groups rewrite their whole name heap (O(k) bytes per output, quadratic in all).
 # HDF5 >= 1.8 (2008) reads it, as does ParaView.
 LIBVER = ("v108", "v108")
-
-
-class PointRows:
-    """This rank's rows of a point set, sorted once for writing (HDF5 needs rising indices)."""
-
-    def __init__(self, rows, n_global: int):
-        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
-        self.n_global = n_global
-        self.n_local = rows.size
-        # order that sorts this rank's rows: data is permuted the same way before writing
-        self.order = np.argsort(rows, kind="stable")
-        self.sorted_rows = rows[self.order]  # (n_local,)
-        span = self.sorted_rows[-1] - self.sorted_rows[0] + 1 if rows.size else 0
-        self.contiguous = rows.size > 0 and span == rows.size
-
-    @classmethod
-    def checked(cls, comm, rows, n_global: int, what: str) -> PointRows:
-        """Build after checking on every rank that the rows split 0..n_global-1; collective."""
-        point_rows = cls(rows, n_global)
-        sorted_rows = point_rows.sorted_rows
-        in_range = bool(np.all((sorted_rows >= 0) & (sorted_rows < n_global)))
-        unique = bool(np.all(np.diff(sorted_rows) > 0))
-        total = comm.allreduce(sorted_rows.size)
-        message = f"{what} rows must split 0..{n_global - 1} between ranks, got {total} rows"
-        raise_unless_everywhere(
-            comm, in_range and unique and total == n_global, ValueError(message)
-        )
-        return point_rows
-
-    def write(self, dataset, values: np.ndarray) -> None:
-        """Write ``values`` (n_local, ...) to this rank's rows of ``dataset`` (independent I/O)."""
-        if self.n_local == 0:
-            return
-        values = np.ascontiguousarray(values[self.order], dtype=dataset.dtype)
-        if self.contiguous:
-            first = int(self.sorted_rows[0])
-            dataset[first : first + self.n_local] = values
-            return
-        # (n_local * n_components, ndim) file coordinates of every value, row-major like values
-        n_components = values.size // self.n_local
-        coordinates = np.repeat(self.sorted_rows, n_components)[:, None]
-        if values.ndim == 2:
-            columns = np.tile(np.arange(n_components), self.n_local)[:, None]
-            coordinates = np.hstack([coordinates, columns])
-        file_space = dataset.id.get_space()
-        file_space.select_elements(coordinates.astype(np.uint64))
-        memory_space = h5py.h5s.create_simple((values.size,))
-        dataset.id.write(memory_space, file_space, values.reshape(-1))
 
 
 def layout_of(values) -> tuple:
@@ -97,13 +49,16 @@ def append_scalar(comm, dataset, value) -> None:
         dataset[n] = value
 
 
-def open_h5(comm, path: pathlib.Path):
-    """Create ``path`` (never overwriting) with the MPI-IO driver on > 1 rank; collective."""
+def open_h5(comm, path: pathlib.Path, mode: str = "w-"):
+    """Open ``path`` (default: create, never overwriting) with the MPI-IO driver on > 1 rank.
+
+    Collective.  ``mode`` as h5py's ("r" to read, "w" to replace a scratch file).
+    """
     if comm.size == 1:
-        return h5py.File(path, "w-", libver=LIBVER)
+        return h5py.File(path, mode, libver=LIBVER)
     if not h5py.get_config().mpi:
         raise RuntimeError("h5py lacks MPI support; run under mpirun with Debian's h5py-mpi")
-    return h5py.File(path, "w-", driver="mpio", comm=comm, libver=LIBVER)
+    return h5py.File(path, mode, driver="mpio", comm=comm, libver=LIBVER)
 
 
 def store_attributes(h5file, metadata: dict) -> None:

@@ -41,13 +41,13 @@ import numpy as np
 from parefg.errors import InputError
 from parefg.io.hdf5 import (
     GROWING_FLOATS,
-    PointRows,
     agreed_layout,
     append_scalar,
     layout_of,
     open_h5,
     store_attributes,
 )
+from parefg.io.rows import BlockRows
 from parefg.io.xdmf import H5_NAME, XDMF_NAME, XdmfIndex, snapshot_text
 from parefg.parallel import call_on_root, raise_unless_everywhere, same_everywhere
 
@@ -57,8 +57,11 @@ HISTORY_BLOCK = 256  # per-step rows kept in memory before they are stored
 class ResultWriter:
     """Collective writer of ``result.h5`` and ``result.xdmf`` in ``out_dir``.
 
-    The HDF5 file is opened with h5py's MPI-IO driver on more than one rank (every rank
-    writes its own rows, independent I/O) and with the default driver on one rank. Dataset
+    The HDF5 file is opened with h5py's MPI-IO driver on more than one rank and with the
+    default driver on one rank.  Each point array is written by all ranks together, every
+    rank one hyperslab: the block of file rows as large as its share of the points, filled
+    from the other ranks by one Alltoallv (:class:`~parefg.io.rows.BlockRows`; no rank
+    holds more than its share, nothing is gathered to rank 0).  Dataset
     creation, resizing, attributes and flushes are collective: every rank makes the same
     calls. Values that must agree across ranks (metadata, history rows, step and time) are
     taken from rank 0.
@@ -115,8 +118,8 @@ class ResultWriter:
         self.n_nodes = int(n_nodes)
         self.n_contact = int(n_contact)
         _refuse_existing(comm, self.h5_path, self.xdmf_path)
-        self.node_rows = PointRows.checked(comm, node_rows, self.n_nodes, "node")
-        self.contact_rows = PointRows.checked(comm, contact_rows, self.n_contact, "contact")
+        self.node_rows = BlockRows(comm, node_rows, self.n_nodes, "node")
+        self.contact_rows = BlockRows(comm, contact_rows, self.n_contact, "contact")
         self.n_outputs = 0
         self.xdmf_bytes_written = 0  # bytes handed to the XDMF file (rank 0), for tests
         self._layouts: dict[str, list[tuple]] = {}  # field group -> agreed (name, trailing, dtype)
@@ -234,7 +237,7 @@ class ResultWriter:
         self.file = None
         self._xdmf.close()
 
-    def _write_points(self, path: str, rows: PointRows, values) -> tuple:
+    def _write_points(self, path: str, rows: BlockRows, values) -> tuple:
         """Create dataset ``path`` with one row per global point and write this rank's rows."""
         values = np.asarray(values)
         trailing, dtype = agreed_layout(self.comm, path, values, rows.n_local)
@@ -242,7 +245,7 @@ class ResultWriter:
         rows.write(dataset, values)
         return trailing, dtype
 
-    def _write_fields(self, path_pattern: str, rows: PointRows, fields: dict) -> list:
+    def _write_fields(self, path_pattern: str, rows: BlockRows, fields: dict) -> list:
         """Write every field under ``path_pattern.format(name)``; return their XDMF specs.
 
         The ranks agree on the names and layouts through one allgather per call once the

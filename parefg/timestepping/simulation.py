@@ -200,12 +200,49 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self._spare = None
         self._dirichlet_previous = {}
         self._dirichlet_terms(state.u, t)
-        self.guard.check()  # also the friction bound that read_checkpoint set
+        self.guard.check()  # also the friction bound that restore() set
         self._energy_budget = [stored_energy(last_row), abs(last_row["external_work"])]
         self.history = [dict(last_row)]
         if isinstance(self.solver, CoulombStepSolver):
             self.solver.resume(state.u)  # its first bound, as in the uninterrupted run
         return state
+
+    # -- restart ---------------------------------------------------------------------------
+    def snapshot(self, state: State, step: int) -> dict:
+        """What a restart after ``step`` needs, as this rank's arrays (no communication).
+
+        "u", "v", "a": (n_owned, 2) nodal parameters of this rank's nodes; with a contact
+        boundary "slip" (the accumulated slip xi) and "contact_level" (the step's normal
+        force C_n that a_n holds, :meth:`ContactLaw.end_level`) at this rank's Gamma_C
+        points; "step", "time" and "history" (the last per-step row: the energies and the
+        running sums of dissipation and external work).  The friction bounds are not
+        stored: :meth:`restore` recomputes them from t (Tresca) and from u (Coulomb's
+        mu_f p(u_n)), as the uninterrupted run does at the next step.
+        """
+        snapshot: dict = {
+            name: getattr(state, name).getArray().reshape(-1, 2).copy() for name in ("u", "v", "a")
+        }
+        if self.law is not None:
+            snapshot["slip"] = np.array(self.law.slip, dtype=float)
+            snapshot["contact_level"] = np.array(self.law.level_pressure, dtype=float)
+        snapshot.update(step=int(step), time=step * self.scheme.k, history=dict(self.history[-1]))
+        return snapshot
+
+    def restore(self, snapshot: dict) -> State:
+        """The level of a :meth:`snapshot` (this rank's arrays), ready for the next step.
+
+        Sets the contact state, then continues like :meth:`resume`.  Collective.
+        """
+        vectors = {}
+        for name in ("u", "v", "a"):
+            vectors[name] = self.disc.create_vec()
+            vectors[name].setArray(np.asarray(snapshot[name], dtype=float).ravel())
+        step = int(snapshot["step"])
+        if self.law is not None:
+            self.law.set_time(step * self.scheme.k)
+            self.law.slip = np.array(snapshot["slip"], dtype=float)
+            self.law.level_pressure = np.array(snapshot["contact_level"], dtype=float)
+        return self.resume(State(**vectors), step, snapshot["history"])
 
     # -- the loop ------------------------------------------------------------------------
     def step(self, state: State, n: int) -> State:

@@ -18,7 +18,6 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
-from parefg.io.hdf5 import PointRows as _PointRows
 from parefg.io.output import ResultWriter
 
 # this module is also imported by a child process (CRASHING_RUN), without conftest
@@ -181,9 +180,8 @@ def test_file_readable_mid_run(comm, run_dir):
     writer, node_rows, contact_rows = make_writer(comm, run_dir, node_coords, contact_coords)
     try:
         write_steps(comm, writer, node_rows, contact_rows, steps, 2)
-        # on 2 ranks the interleaved rows take the parallel, scattered-row path
+        # on 2 ranks the interleaved rows move to their file blocks (collective MPI-IO)
         assert writer.file.driver == ("mpio" if comm.size > 1 else "sec2")
-        assert writer.node_rows.contiguous == (comm.size == 1)
         comm.barrier()
         snapshot = run_dir.parent / "snapshot"
         if comm.rank == 0:
@@ -253,18 +251,6 @@ def test_rows_that_do_not_cover_the_points_fail_on_every_rank(comm, run_dir):
             n_contact=0,
             metadata={},
         )
-
-
-def test_point_selection_writes_scattered_rows(tmp_path):
-    """The non-contiguous path (used on > 1 rank) on a local file: rows 4, 1, 7 of 9."""
-    rows = _PointRows([4, 1, 7], 9)
-    values = np.array([[4.0, 40.0], [1.0, 10.0], [7.0, 70.0]])  # (3, 2)
-    with h5py.File(tmp_path / "scattered.h5", "w") as f:
-        dataset = f.create_dataset("a", shape=(9, 2), dtype=np.float64)
-        rows.write(dataset, values)
-        expected = np.zeros((9, 2))
-        expected[[1, 4, 7]] = [[1.0, 10.0], [4.0, 40.0], [7.0, 70.0]]
-        np.testing.assert_array_equal(dataset[()], expected)
 
 
 @pytest.mark.serial_only

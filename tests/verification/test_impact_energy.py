@@ -153,9 +153,8 @@ def test_restart_within_an_impact_at_beta_half_matches(tmp_path):
     write_checkpoint(comm, path, sim, state, split)
     again = Simulation(comm, scene, disc)
     again.start()
-    state, done, row = read_checkpoint(comm, path, again)
-    state = again.resume(state, done, row)
-    for n in range(done + 1, scene.n_steps + 1):
+    state = again.restore(read_checkpoint(comm, path, again))
+    for n in range(split + 1, scene.n_steps + 1):
         state = again.step(state, n)
     difference = state.u.copy()
     difference.axpy(-1.0, reference.u)
