@@ -10,8 +10,10 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.errors import InputError
 from parefg.parallel import set_from_options
 from parefg.run import prepare
+from parefg.scene.loader import load_scene
 from parefg.timestepping.linear_solver import SOLVER_METHODS
 
 COARSE = ["discretization.h=0.125", "discretization.degree=2", "time.T=0.1"]
@@ -21,6 +23,16 @@ BETTER = ["discretization.support=2.2"]
 
 def _penalty(n: int) -> str:
     return f"penalty.alpha={100 * n}"  # 100 E / h with E = 1, h = 1/n
+
+
+def test_the_method_is_a_scene_key_from_the_registry():
+    assert load_scene("square").solver_method == "direct"
+    scene = load_scene("square", ["solver.method=iterative", "solver.ksp_rtol=1e-9"])
+    assert scene.solver_method == "iterative"
+    assert scene.solver_options == {"ksp_rtol": "1e-09"}  # the method is no PETSc option
+    assert scene.params["solver"]["method"] == "iterative"  # written back
+    with pytest.raises(InputError, match="solver.method = 'gauss': must be one of 'direct'"):
+        load_scene("square", ["solver.method=gauss"])
 
 
 def _run(overrides):

@@ -12,10 +12,10 @@ pytestmark = pytest.mark.serial_only
 NO_CONTACT = ["--set", "boundary.bottom.type=neumann"]  # each step one linear solve
 
 
-@pytest.mark.parametrize("how", [["--solver", "gauss"], ["--set", "solver.method=gauss"]])
-def test_unknown_method_is_bad_input(tmp_path, how):
+def test_unknown_method_is_bad_input(tmp_path):
     out = tmp_path / "never"
-    result = run_parefg(["run", "square", *QUICK, *how, "--out", str(out), "--quiet"])
+    args = ["run", "square", *QUICK, "--solver", "gauss", "--out", str(out), "--quiet"]
+    result = run_parefg(args)
     assert_bad_input(result, ["solver.method", "gauss", "'direct', 'iterative'"])
     assert not out.exists()
 
