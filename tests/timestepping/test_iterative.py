@@ -60,7 +60,7 @@ def test_iterative_reproduces_the_direct_errors(setting):
 
 
 def test_iterative_mass_solve_is_cg():
-    """The one-time mass solve takes the method's CG too (prefix mass_), to round-off."""
+    """The one-time mass solve takes the method's CG too (prefix mass_), to 1e-10."""
     sim = prepare(MPI.COMM_WORLD, "square", [*COARSE, "solver.method=iterative"])
     sim.start()
     ksp = sim._mass_ksp
@@ -71,7 +71,7 @@ def test_iterative_mass_solve_is_cg():
     sim._mass_solve(rhs, out)
     sim.disc.mass.mult(out, residual)
     residual.axpy(-1.0, rhs)
-    assert residual.norm() <= 1e-10 * rhs.norm()
+    assert residual.norm() <= 1e-9 * rhs.norm()  # CG stops at 1e-10 (its recurrence)
 
 
 def _step_jacobian_iterations(n: int) -> int:
