@@ -32,7 +32,7 @@ COMM = MPI.COMM_WORLD
 BETTER_SUPPORT = {1: 2.2, 2: 2.2, 3: 3.2}
 SETTINGS = {
     "defaults": lambda m, n: [],
-    "s=2.2, 100 E/h": lambda m, n: [
+    "s=2.2 alpha=100E/h": lambda m, n: [
         f"discretization.support={BETTER_SUPPORT[m]}",
         f"penalty.alpha={100 * n}",
     ],
