@@ -103,6 +103,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--restart", metavar="FILE", help="continue from a checkpoint file")
     run.add_argument("--max-memory", type=float, metavar="GB", help=MAX_MEMORY_HELP)
+    run.add_argument(
+        "--solver",
+        metavar="METHOD",
+        help='linear solver method: "direct" (default) or "iterative" (CG + GAMG); '
+        "overrides the scene's solver.method, -ksp_/-pc_ options still apply",
+    )
     sweep = sub.add_parser("sweep", help="run a grid of cases; error-vs-time table, CSV and PNG")
     sweep.add_argument("scene")
     sweep.add_argument("--vary", action="append", required=True, metavar="SECTION.KEY=V1,V2,...")

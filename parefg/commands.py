@@ -11,7 +11,9 @@ def run(comm, args) -> int:
     from parefg.run import run_scene
     from parefg.scene.loader import load_scene
 
-    scene = load_scene(args.scene, args.set)
+    # --solver is solver.method given last: it wins over the scene and --set
+    method = [] if args.solver is None else [f"solver.method={args.solver}"]
+    scene = load_scene(args.scene, [*args.set, *method])
     run_scene(
         comm,
         scene,

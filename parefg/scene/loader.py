@@ -76,7 +76,8 @@ class Scene:
     exact: ExactSolution | None
     output_every: int
     output_fields: list[str]
-    solver_options: dict[str, str]
+    solver_method: str  # a name of parefg.timestepping.linear_solver.SOLVER_METHODS
+    solver_options: dict[str, str]  # PETSc options of the [solver] table (method excluded)
 
 
 def builtin_scenes() -> dict[str, str]:
@@ -230,5 +231,6 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         exact=manufactured.solution() if manufactured else None,
         output_every=params["output"]["every"],
         output_fields=list(params["output"]["fields"]),
-        solver_options=dict(params["solver"]),
+        solver_method=params["solver"]["method"],
+        solver_options={k: v for k, v in params["solver"].items() if k != "method"},
     )

@@ -6,7 +6,8 @@ allowed names of interchangeable parts are read from their registries, not liste
 domain shapes and their keys from :data:`parefg.geometry.shapes.SHAPES`, weights from
 :data:`parefg.discretization.weights.WEIGHTS`, friction laws from
 :data:`parefg.mechanics.friction.FRICTION_LAWS`, time schemes from
-:data:`parefg.timestepping.schemes.SCHEMES`, boundary types from
+:data:`parefg.timestepping.schemes.SCHEMES`, solver methods from
+:data:`parefg.timestepping.linear_solver.SOLVER_METHODS`, boundary types from
 :class:`parefg.boundary.BoundaryKind`.  :func:`validate` returns the effective params,
 defaults written back, that :mod:`parefg.scene.loader` turns into a
 :class:`~parefg.scene.loader.Scene`.
@@ -41,6 +42,7 @@ from parefg.scene.table import (
     one_of,
     show,
 )
+from parefg.timestepping.linear_solver import DEFAULT_SOLVER_METHOD, SOLVER_METHODS
 from parefg.timestepping.schemes import (
     SCHEMES,
     GeneralizedAlphaScheme,
@@ -259,9 +261,10 @@ def _read_output(table: Table, time: dict) -> None:
 
 
 def _read_solver(where: str, raw) -> dict[str, str]:
-    """PETSc options (name without '-') -> value as on a command line ("" for a bare flag)."""
+    """``method`` (SOLVER_METHODS, default "direct") and PETSc options (name without '-')
+    -> value as on a command line ("" for a bare flag)."""
     table = Table(where, "solver", raw)
-    options = {}
+    options = {"method": table.take("method", one_of(*SOLVER_METHODS), DEFAULT_SOLVER_METHOD)}
     for key, value in table.raw.items():
         name = key.lstrip("-")
         if not name or not all(c.isalnum() or c == "_" for c in name):

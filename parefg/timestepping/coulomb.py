@@ -40,6 +40,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from parefg.errors import SolverError
+from parefg.timestepping.linear_solver import DEFAULT_SOLVER_METHOD
 from parefg.timestepping.step_solver import ContactStepSolver
 
 #: outer (bound) iterations per step before the step fails; -coulomb_max_it overrides
@@ -53,8 +54,8 @@ class CoulombStepSolver(ContactStepSolver):
     :attr:`outer_residuals` the Coulomb residual after each of them.
     """
 
-    def __init__(self, comm, a_const: PETSc.Mat, law):
-        super().__init__(comm, a_const, law)
+    def __init__(self, comm, a_const: PETSc.Mat, law, method: str = DEFAULT_SOLVER_METHOD):
+        super().__init__(comm, a_const, law, method)
         self.max_outer = PETSc.Options().getInt("coulomb_max_it", DEFAULT_MAX_OUTER)
         self.outer_iterations = 0
         self.outer_residuals: list[float] = []

@@ -16,7 +16,11 @@ from petsc4py import PETSc
 
 from parefg.errors import SolverError
 from parefg.parallel import petsc_matrix, set_from_options, with_pattern
-from parefg.timestepping.linear_solver import LinearStepSolver, configure_linear_solver
+from parefg.timestepping.linear_solver import (
+    SOLVER_METHODS,
+    LinearStepSolver,
+    configure_linear_solver,
+)
 from parefg.timestepping.schemes import State
 from parefg.timestepping.step_solver import ContactStepSolver
 
@@ -56,10 +60,10 @@ class InitialState:
         if self._mass_ksp is None:
             ksp = PETSc.KSP().create(self.comm)
             ksp.setOperators(self.disc.mass)
-            # once per run (u_0, v_0 projections and a_0): a direct factorization beats CG
-            # on the ill-conditioned MLS mass matrix; -mass_ksp_type/-mass_pc_type override
+            # once per run (u_0, v_0 projections and a_0): a direct factorization by
+            # default, CG with the iterative method; -mass_ksp_type/-mass_pc_type override
             configure_linear_solver(ksp)
-            set_from_options(ksp, "mass_")
+            set_from_options(ksp, "mass_", SOLVER_METHODS[self.scene.solver_method].mass)
             self._mass_ksp = ksp
         self._mass_ksp.solve(rhs, out)
         if self._mass_ksp.getConvergedReason() < 0:
@@ -130,10 +134,11 @@ class InitialState:
         operator.setOption(PETSc.Mat.Option.SPD, True)
         operator.setNearNullSpace(self._rigid_body_modes(operator))
         solver: LinearStepSolver | ContactStepSolver
+        method = self.scene.solver_method
         if self.law is None:
-            solver = LinearStepSolver(self.comm, operator)
+            solver = LinearStepSolver(self.comm, operator, method)
         else:
-            solver = ContactStepSolver(self.comm, operator, self.law)  # bound still 0
+            solver = ContactStepSolver(self.comm, operator, self.law, method)  # bound still 0
         try:
             if self.law is None:
                 solver.solve(rhs, u, 0.0)

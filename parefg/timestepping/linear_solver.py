@@ -6,16 +6,82 @@ stops above the step tolerance max(atol, rtol * scale) is refined with the same 
 :mod:`parefg.timestepping.step_solver` for the tolerance).  The helpers here also set up
 the KSP of the contact step's Newton solve and of the mass solve: a direct factorization
 by default (MUMPS when PETSc has it), checked once for a singular matrix.
+
+The solver *method* (:data:`SOLVER_METHODS`, the scene's ``[solver] method``, ``parefg run
+--solver``) names the whole option set: "direct" (the factorization) or "iterative" (CG +
+smoothed-aggregation AMG with the rigid-body near-null space).  Its options are offered as
+defaults while each KSP reads its options, so any -ksp_/-pc_ option still wins.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 from petsc4py import PETSc
 
 from parefg.errors import SolverError
+from parefg.parallel import set_from_options
 
 FACTORIZATIONS = ("lu", "cholesky", "ilu", "icc")
+#: an iterative KSP stops at this fraction of the step tolerance max(atol, rtol * scale)
+#: (true residual): the step check then passes at once, for any scale of the forces
+KSP_TOLERANCE_FRACTION = 0.01
+
+
+@dataclass(frozen=True)
+class SolverMethod:
+    """A named set of PETSc defaults for the step solves and the mass solve.
+
+    ``step`` are options of the step KSP (read unprefixed: ``ksp_type``, ``pc_type``, ...),
+    ``mass`` those of the mass KSP (read with prefix ``mass_``), both without the prefix.
+    ``scaled_tolerance``: the step KSP stops at KSP_TOLERANCE_FRACTION of the step
+    tolerance, unless -ksp_atol is given.
+    """
+
+    name: str
+    step: dict[str, str] = field(default_factory=dict)
+    mass: dict[str, str] = field(default_factory=dict)
+    scaled_tolerance: bool = False
+
+
+# Measured (square, step Jacobian, CG to 1e-8; scripts/bench/bench_iterative.py): a
+# threshold of 0.05 keeps GAMG from coarsening the wide MLS stencils in one jump (2178 ->
+# 18 rows at h = 1/32); the Chebyshev/Jacobi smoother is SPD (SOR's inode blocks hit zero
+# pivots on the coarse rigid-body levels); the residual is the true one, so the tolerance
+# is on |b - A u|.  The preconditioner is rebuilt only when the step matrix changes (the
+# contact active set); reusing GAMG's interpolation then (measured at s = 3.2: square,
+# h = 1/16, first step) leaves CG with DIVERGED_INDEFINITE_PC after 3 iterations.
+_AMG = {
+    "ksp_type": "cg",
+    "ksp_norm_type": "unpreconditioned",
+    "ksp_rtol": "1e-8",
+    "ksp_max_it": "10000",
+    "pc_type": "gamg",
+    "pc_gamg_type": "agg",
+    "pc_gamg_agg_nsmooths": "1",
+    "pc_gamg_threshold": "0.05",
+    "pc_gamg_reuse_interpolation": "false",  # PETSc 3.18's default is true
+    "mg_levels_ksp_type": "chebyshev",
+    "mg_levels_pc_type": "jacobi",
+}
+# The mass matrix is SPD with no near-null space: CG + Jacobi.  Measured (true residual
+# to 1e-13, where it stalls near 1e-11): 76 iterations at s = 2.2 (m = 2, h = 1/64), but
+# 4809 / 9524 at the default s = 3.2 (h = 1/32, 1/64) and 10102 at m = 3 (h = 1/32); GAMG
+# needs a third of those at twice the cost each.  The solve is done once (u_0, v_0, a_0).
+_MASS = {
+    "ksp_type": "cg",
+    "ksp_norm_type": "unpreconditioned",
+    "ksp_rtol": "1e-10",
+    "ksp_max_it": "20000",
+    "pc_type": "jacobi",
+}
+#: solver method name -> its option set; the scene schema reads the names
+SOLVER_METHODS = {
+    "direct": SolverMethod("direct"),
+    "iterative": SolverMethod("iterative", step=_AMG, mass=_MASS, scaled_tolerance=True),
+}
+DEFAULT_SOLVER_METHOD = "direct"
 
 
 def configure_linear_solver(ksp: PETSc.KSP) -> None:
@@ -24,6 +90,16 @@ def configure_linear_solver(ksp: PETSc.KSP) -> None:
     pc = ksp.getPC()
     pc.setType(PETSc.PC.Type.CHOLESKY)
     pc.setFactorSolverType("mumps")
+
+
+def scaled_ksp_tolerance(method: SolverMethod) -> bool:
+    """Whether the step KSP's atol follows the step tolerance (no -ksp_atol given)."""
+    return method.scaled_tolerance and not PETSc.Options().hasName("ksp_atol")
+
+
+def set_ksp_tolerance(ksp: PETSc.KSP, step_tolerance: float) -> None:
+    """KSP atol = KSP_TOLERANCE_FRACTION * the step tolerance (rtol etc. kept).  Not collective."""
+    ksp.setTolerances(atol=KSP_TOLERANCE_FRACTION * step_tolerance)
 
 
 def check_factorization(ksp: PETSc.KSP, matrix: PETSc.Mat) -> None:
@@ -101,12 +177,14 @@ class LinearStepSolver:
     that does not reduce the residual is a failure.
     """
 
-    def __init__(self, comm, a_const: PETSc.Mat):
+    def __init__(self, comm, a_const: PETSc.Mat, method: str = DEFAULT_SOLVER_METHOD):
         self.a_const = a_const
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setOperators(a_const)
         configure_linear_solver(self.ksp)
-        self.ksp.setFromOptions()
+        # the step's options are the unprefixed ones (-ksp_type, as for the contact step)
+        set_from_options(self.ksp, "", SOLVER_METHODS[method].step)
+        self.scaled_tolerance = scaled_ksp_tolerance(SOLVER_METHODS[method])
         check_factorization(self.ksp, a_const)
         self.exact = is_exact(self.ksp)
         options = PETSc.Options()
@@ -124,6 +202,8 @@ class LinearStepSolver:
             self.ksp.setUp()
             self.factorizations = 1
         self.tolerance = max(self.atol, self.rtol * step_scale(self.a_const, b, u, self._residual))
+        if self.scaled_tolerance:
+            set_ksp_tolerance(self.ksp, self.tolerance)
         self._solve(b, u, t)
         linear, previous = self.ksp.getIterationNumber(), np.inf
         for _ in range(self.max_sweeps):

@@ -59,9 +59,9 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             self.a_const = self._a_const()
             self.solver: LinearStepSolver | ContactStepSolver
             if self.law is None:
-                self.solver = LinearStepSolver(comm, self.a_const)
+                self.solver = LinearStepSolver(comm, self.a_const, scene.solver_method)
             else:
-                self.solver = _contact_solver(comm, self.a_const, self.law)
+                self.solver = _contact_solver(comm, self.a_const, self.law, scene.solver_method)
             self.rigid_modes = self._rigid_mode_check()
         self.history: list[dict[str, float]] = []
         self._energy_budget = [0.0, 0.0]  # initial stored energy, largest |external work|
@@ -361,8 +361,8 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         return relative_errors(self.comm, self.disc, self.scene.exact, u, t)
 
 
-def _contact_solver(comm, a_const: PETSc.Mat, law: ContactLaw) -> ContactStepSolver:
+def _contact_solver(comm, a_const: PETSc.Mat, law: ContactLaw, method: str) -> ContactStepSolver:
     """The Newton step solver, with the Coulomb fixed point around it when a part needs it."""
     if law.has_coulomb:
-        return CoulombStepSolver(comm, a_const, law)
-    return ContactStepSolver(comm, a_const, law)
+        return CoulombStepSolver(comm, a_const, law, method)
+    return ContactStepSolver(comm, a_const, law, method)

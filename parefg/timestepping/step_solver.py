@@ -39,13 +39,17 @@ from petsc4py import PETSc
 from parefg.errors import InputError, SolverError
 from parefg.parallel import add_owned_rows, set_from_options
 from parefg.timestepping.linear_solver import (
+    DEFAULT_SOLVER_METHOD,
     DEFAULT_TOLERANCES,
     INEXACT_HINT,
+    SOLVER_METHODS,
     check_factorization,
     configure_linear_solver,
     is_exact,
     ksp_failure,
     reason_name,
+    scaled_ksp_tolerance,
+    set_ksp_tolerance,
     step_scale,
 )
 
@@ -61,8 +65,9 @@ LINE_SEARCHES = ("basic", "bt", "cp", "nleqerr")
 class ContactStepSolver:
     """Semismooth Newton (SNES) with the exact line search of SPEC 4.  Collective."""
 
-    def __init__(self, comm, a_const: PETSc.Mat, law):
+    def __init__(self, comm, a_const: PETSc.Mat, law, method: str = DEFAULT_SOLVER_METHOD):
         self.comm, self.a_const, self.law = comm, a_const, law
+        self.method = SOLVER_METHODS[method]
         self.jacobian = a_const.duplicate(copy=True)
         # GAMG needs the rigid-body modes on the matrix it is built from
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
@@ -84,6 +89,7 @@ class ContactStepSolver:
         self._failure: str | None = None  # why the running step must fail
         self.snes = self._create_snes(comm)
         self.exact = is_exact(self.snes.getKSP())
+        self.scaled_tolerance = scaled_ksp_tolerance(self.method)
 
     def _create_snes(self, comm) -> PETSc.SNES:
         snes = PETSc.SNES().create(comm)
@@ -98,7 +104,8 @@ class ContactStepSolver:
         # the step's options are the unprefixed ones (-snes_rtol, -ksp_type: the README's);
         # petsc4py 3.18 has no SNES.getLineSearch, so the default line search is offered
         # through the options database while this SNES reads it, and removed after
-        set_from_options(snes, "", {"snes_linesearch_type": "basic"})
+        # (and the solver method's KSP options, read by the SNES's KSP)
+        set_from_options(snes, "", {"snes_linesearch_type": "basic", **self.method.step})
         check_factorization(snes.getKSP(), self.jacobian)
         return snes
 
@@ -242,6 +249,8 @@ class ContactStepSolver:
         b.copy(self.b)
         rtol, atol, _, _ = self.snes.getTolerances()
         self.tolerance = max(atol, rtol * step_scale(self.a_const, b, u, self._check))
+        if self.scaled_tolerance:
+            set_ksp_tolerance(self.snes.getKSP(), self.tolerance)
         self._failure = None
         before = self.jacobian_builds
         self.snes.solve(None, u)
