@@ -47,8 +47,9 @@ from petsc4py import PETSc
 
 from parefg.boundary import BoundaryKind
 from parefg.guards import DataGuard
-from parefg.mechanics.discrete_gradient import crossings, dg_potential, dg_pressure, dg_slope
+from parefg.mechanics.discrete_gradient import crossings
 from parefg.mechanics.friction import FRICTION_LAWS, PRESSURE_LAWS, coulomb_bound
+from parefg.mechanics.normal_force import CONTACT_FORCES, EndpointForce, NormalForce
 from parefg.parallel import owned_rows, petsc_matrix
 
 OPEN, STICK, SLIP = 0, 1, 2
@@ -74,7 +75,9 @@ class ContactLaw:
         self.alpha_c, self.alpha_t = scene.alpha_contact, scene.alpha_friction
         # the discrete gradient needs a previous level: static load steps use the endpoint
         dynamic = scene.scheme != "static"
-        self.contact_force = scene.contact_force if dynamic else "endpoint"
+        self.normal_force: type[NormalForce] = (
+            CONTACT_FORCES[scene.contact_force] if dynamic else EndpointForce
+        )
         self.dof_ranges = 2 * disc.partition.node_ranges
         bcs = [scene.boundaries[name] for name in disc.cloud.part_names if name in scene.boundaries]
         self._bcs = {
@@ -204,11 +207,11 @@ class ContactLaw:
     @contextmanager
     def endpoint_force(self):
         """Within the block the normal force is the pressure at u (a static problem)."""
-        saved, self.contact_force = self.contact_force, "endpoint"
+        saved, self.normal_force = self.normal_force, EndpointForce
         try:
             yield self
         finally:
-            self.contact_force = saved
+            self.normal_force = saved
 
     def begin_step(self, u_start: PETSc.Vec) -> None:
         """Record d_{n-1} = u_nu - s at the start of the step, for the step force.  Collective."""
@@ -281,7 +284,7 @@ class ContactLaw:
             z = self.alpha_t * (ut - self.slip)
             friction_state = np.where(z >= self.bound, 1, np.where(z <= -self.bound, 2, 0))
             code = code + 2 * friction_state.astype(np.int8)
-        if self.contact_force == "discrete_gradient":
+        if self.normal_force.uses_start_level:
             code = np.where(self.crossing(un), -1, code).astype(np.int8)
         return code
 
@@ -296,7 +299,7 @@ class ContactLaw:
         the pressure at u_n after a crossing; the friction part is the last step's.
         """
         pressure, friction = self.forces(un, ut)
-        if self.contact_force == "discrete_gradient":
+        if self.normal_force.uses_start_level:
             pressure = self.level_pressure
         self._add_point_forces(residual, pressure, friction)
 
@@ -336,34 +339,18 @@ class ContactLaw:
         return self.alpha_c * self._penetration(un)
 
     def step_pressure(self, un) -> np.ndarray:
-        """Normal force of the step at the points (``[time] contact_force``).
-
-        "endpoint": the pressure at the end of the step, alpha_C (u_nu - s)^+.
-        "discrete_gradient": C_n = 2 DG(d_{n-1}, d_n) - C_{n-1} (:func:`dg_pressure` is
-        2 DG - alpha_C d_{n-1}^+), with C_{n-1} the force of the start level; with
-        C_{n-1} the pressure there, it differs from the endpoint force only at points that
-        cross the obstacle within the step.
-        """
-        if self.contact_force == "endpoint":
-            return self.pressure(un)
-        return dg_pressure(self.start_penetration, un - self.gap, self.alpha_c) + self._shift()
-
-    def _shift(self) -> np.ndarray:
-        """alpha_C d_{n-1}^+ - C_{n-1}: zero when the start level holds the pressure."""
-        return self.alpha_c * np.maximum(self.start_penetration, 0.0) - self.level_pressure
+        """Normal force C_n of the step at the points (``[time] contact_force``)."""
+        force, d0 = self.normal_force, self.start_penetration
+        return force.pressure(d0, un - self.gap, self.alpha_c, self.level_pressure)
 
     def step_slope(self, un) -> np.ndarray:
         """d(step_pressure)/d u_nu at the points (>= 0)."""
-        if self.contact_force == "endpoint":
-            return self.alpha_c * (un > self.gap)
-        return dg_slope(self.start_penetration, un - self.gap, self.alpha_c)
+        return self.normal_force.slope(self.start_penetration, un - self.gap, self.alpha_c)
 
     def _step_potential(self, un) -> np.ndarray:
         """Primitive of :meth:`step_pressure` in u_nu (convex): the step's contact energy."""
-        if self.contact_force == "endpoint":
-            return self._normal_potential(un)
-        d1 = un - self.gap
-        return dg_potential(self.start_penetration, d1, self.alpha_c) + self._shift() * d1
+        force, d0 = self.normal_force, self.start_penetration
+        return force.potential(d0, un - self.gap, self.alpha_c, self.level_pressure)
 
     def _normal_potential(self, un) -> np.ndarray:
         """alpha_C/2 ((u_nu - s)^+)^2 at the points."""

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from parefg.errors import InputError
+from parefg.mechanics.penalty import PENALTY_KINDS
 from parefg.scene.checks import SignChecks
 from parefg.scene.fields import (
     BoundaryCondition,
@@ -29,7 +30,7 @@ from parefg.scene.fields import (
     vector_field,
 )
 from parefg.scene.manufactured import ExactSolution, ManufacturedSolution, initial_elasticity
-from parefg.scene.schema import PENALTY_KINDS, elastic_constants, plain_name, step_count, validate
+from parefg.scene.schema import elastic_constants, plain_name, step_count, validate
 from parefg.scene.symbolic import DerivativeBudget
 from parefg.timestepping.schemes import SCHEMES
 

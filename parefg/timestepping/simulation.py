@@ -300,7 +300,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         scene at beta = 1/2 then gains energy without bound).  Collective.
         """
         law = self.law
-        if law is None or not self.scheme.dynamic or law.contact_force == "endpoint":
+        if law is None or not self.scheme.dynamic or not law.normal_force.uses_start_level:
             return
         un = law.kinematics(new.u)[0]
         physical = self.scheme.trapezoidal
