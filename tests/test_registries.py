@@ -53,7 +53,7 @@ def test_a_registered_shape_is_a_scene_choice(monkeypatch):
 def test_a_registered_scheme_is_a_scene_choice(monkeypatch):
     monkeypatch.setitem(schemes.SCHEMES, "quasistatic", schemes.StaticScheme)
     scene = load_scene("square", ["time.scheme=quasistatic"])
-    assert scene.scheme == "quasistatic"
+    assert scene.scheme == "quasistatic" and not scene.dynamic
     # The body force derived from [exact] follows the scheme's registry entry: a static
     # scheme has no inertia, so f = -div sigma, the same as under "static".
     static = load_scene("square", ["time.scheme=static"])

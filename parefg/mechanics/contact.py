@@ -74,9 +74,8 @@ class ContactLaw:
         self.normals = normals
         self.alpha_c, self.alpha_t = scene.alpha_contact, scene.alpha_friction
         # the discrete gradient needs a previous level: static load steps use the endpoint
-        dynamic = scene.scheme != "static"
         self.normal_force: type[NormalForce] = (
-            CONTACT_FORCES[scene.contact_force] if dynamic else EndpointForce
+            CONTACT_FORCES[scene.contact_force] if scene.dynamic else EndpointForce
         )
         self.dof_ranges = 2 * disc.partition.node_ranges
         bcs = [scene.boundaries[name] for name in disc.cloud.part_names if name in scene.boundaries]
