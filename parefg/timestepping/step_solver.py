@@ -68,13 +68,11 @@ class ContactStepSolver:
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
         self.b = a_const.createVecRight()
         # work vectors of the line search, the residual check and the energy, allocated once
-        self._direction, self._product, self._trial, self._smooth, self._check = (
-            a_const.createVecRight() for _ in range(5)
+        self._direction, self._product, self._smooth, self._check = (
+            a_const.createVecRight() for _ in range(4)
         )
         self.factorizations = 0
         self.jacobian_builds = 0
-        self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
-        self.record_energy = False
         self.residual_norm = self.tolerance = float("nan")  # of the last step
         self._signature: np.ndarray | None = None  # active set the Jacobian was built for
         # active set of the iterate a Newton step started from (set before any step test)
@@ -173,17 +171,11 @@ class ContactStepSolver:
         piece = self.law.piece(un, ut)
         same_piece = np.all(piece >= 0) and np.array_equal(piece, self.law.piece(un + dn, ut + dt))
         self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
-        before = self.energy(x) if self.record_energy else 0.0
         if not self._exact_piece:
             self.a_const.mult(direction, self._product)
             curvature = self._product.dot(direction)
             y.scale(_minimize_monotone(derivative, derivative(0.0)))
         self._step_norm = y.norm()
-        if self.record_energy:
-            trial = self._trial
-            x.copy(trial)
-            trial.axpy(-1.0, y)
-            self.line_search_log.append((before, self.energy(trial)))
         return not self._exact_piece
 
     def _not_descent(self, x: PETSc.Vec, slope: float) -> None:
