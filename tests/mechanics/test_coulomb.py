@@ -30,10 +30,11 @@ import numpy as np
 import pytest
 from conftest import run_parefg
 from mpi4py import MPI
+from petsc4py import PETSc
 
-from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError
 from parefg.mechanics.contact import OPEN, STICK
+from parefg.run import prepare
 from parefg.scene.loader import load_scene
 from parefg.timestepping.simulation import Simulation
 
@@ -116,8 +117,7 @@ def scenes(tmp_path_factory):
 
 
 def simulation(source: str, overrides=()) -> Simulation:
-    scene = load_scene(source, list(overrides))
-    return Simulation(COMM, scene, build_discretization(COMM, scene))
+    return prepare(COMM, source, overrides)
 
 
 def mean_velocity(sim: Simulation, state) -> np.ndarray:
@@ -299,6 +299,17 @@ def test_a_negative_friction_coefficient_on_the_command_line_exits_2(tmp_path, r
     assert "boundary.bottom.friction_coefficient" in lines[0] and ">= 0" in lines[0]
     assert "Traceback" not in result.stderr
     assert not out.exists()
+
+
+def test_an_outer_iteration_limit_below_one_is_refused(scenes):
+    """-coulomb_max_it 0 would leave the fixed point without a single solve."""
+    options = PETSc.Options()
+    options.setValue("coulomb_max_it", 0)
+    try:
+        with pytest.raises(InputError, match="-coulomb_max_it 0: must be at least 1"):
+            simulation(scenes["mms"])
+    finally:
+        options.delValue("coulomb_max_it")
 
 
 # -- 1 rank == 2 ranks ------------------------------------------------------------------------
