@@ -105,7 +105,7 @@ def read_checkpoint(comm, path: Path, sim) -> tuple[State, int, dict]:
         vec.setArray(data[name][disc.nodes.rows].ravel())
         vectors[name] = vec
     if sim.law is not None:
-        sim.law.set_time(data["step"] * sim.scheme.k)
+        sim.law.set_time(data["step"] * sim.scheme.dt)
         sim.law.slip = data["slip"][disc.contact.rows].copy()
         sim.law.level_pressure = data["contact_level"][disc.contact.rows].copy()
     return State(**vectors), data["step"], data["history"]

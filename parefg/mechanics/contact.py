@@ -379,19 +379,21 @@ class ContactLaw:
         z = ut - self.slip
         return self.comm.allreduce(np.dot(self.weights, 0.5 * self.alpha_t * z**2), op=MPI.SUM)
 
-    def directional(self, un, ut, dn, dt, step) -> tuple[float, float]:
+    def directional(self, un, ut, d_nu, d_tau, step) -> tuple[float, float]:
         """Derivative and slope of the contact energy along u + step d.  Collective.
 
-        Returns (sum_q w_q [dn_q p_q + dt_q f_q], sum_q w_q [alpha_C dn_q^2 closed_q +
-        alpha_T dt_q^2 stick_q]) evaluated at u + step d: the value and the slope of the
-        current linear piece of the (monotone, piecewise linear) directional derivative.
+        ``d_nu``, ``d_tau`` are the normal and tangential components of the direction d at
+        the points.  Returns (sum_q w_q [d_nu p_q + d_tau f_q], sum_q w_q [alpha_C d_nu^2
+        closed_q + alpha_T d_tau^2 stick_q]) evaluated at u + step d: the value and the
+        slope of the current linear piece of the (monotone, piecewise linear) directional
+        derivative.
         """
-        un_s, ut_s = un + step * dn, ut + step * dt
+        un_s, ut_s = un + step * d_nu, ut + step * d_tau
         pressure, friction = self.forces(un_s, ut_s)
-        value = np.dot(self.weights, dn * pressure + dt * friction)
-        slope = np.dot(self.weights, self.step_slope(un_s) * dn**2)
+        value = np.dot(self.weights, d_nu * pressure + d_tau * friction)
+        slope = np.dot(self.weights, self.step_slope(un_s) * d_nu**2)
         if self.has_friction:
-            slope += np.dot(self.weights, self.alpha_t * dt**2 * ~self._sliding(ut_s))
+            slope += np.dot(self.weights, self.alpha_t * d_tau**2 * ~self._sliding(ut_s))
         return tuple(self.comm.allreduce(np.array([value, slope]), op=MPI.SUM))
 
     def end_step(self, un, ut) -> float:

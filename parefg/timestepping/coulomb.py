@@ -11,7 +11,7 @@ of :class:`~parefg.timestepping.step_solver.ContactStepSolver` with the bound fr
 so the exact line search keeps its guarantee inside every solve.  Starting from the last
 step's pressure, not the predictor's, was measured 3x cheaper on a sliding block (m = 1,
 h = 1/16, beta = 0.3025, gamma = 0.6: 804 against 2383 Newton iterations over 50 steps):
-the predictor carries k^2 (1/2 - beta) a, which is large where the penalty acts.  The
+the predictor carries dt^2 (1/2 - beta) a, which is large where the penalty acts.  The
 first step of a run starts from the predictor's pressure; a restart from the checkpointed
 u_{n-1} (:meth:`CoulombStepSolver.resume`), so it repeats the uninterrupted run.
 

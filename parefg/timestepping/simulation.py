@@ -195,7 +195,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
 
     def resume(self, state: State, step: int, last_row: dict) -> State:
         """Continue from a checkpointed state after ``step`` (see parefg.io.checkpoint)."""
-        t = step * self.scheme.k
+        t = step * self.scheme.dt
         self.external_forces(t, self._last_forces)
         self._spare = None
         self._dirichlet_previous = {}
@@ -209,13 +209,13 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
 
     # -- the loop ------------------------------------------------------------------------
     def step(self, state: State, n: int) -> State:
-        """Advance from t_{n-1} to t_n = n k.
+        """Advance from t_{n-1} to t_n = n dt.
 
         The returned State reuses the vectors of the level before ``state``: the vectors
         of ``state`` itself are overwritten by the step after next, so keep a level only
         by copying it.
         """
-        t = n * self.scheme.k
+        t = n * self.scheme.dt
         new = self._next_level(state)
         ut, vt = self._ut, self._vt
         self.scheme.predict(state, ut, vt)
@@ -227,7 +227,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             self.disc.mass.mult(ut, self._work)
             b.axpy(self.scheme.mass_coefficient, self._work)
         if self.scheme.history is not None:  # generalized-alpha: the previous level's share
-            self._add_history(state, t - self.scheme.k, b)
+            self._add_history(state, t - self.scheme.dt, b)
         ut.copy(new.u)  # initial guess: the predictor
         if self.law is not None:
             self.law.gate(ut)  # where friction acts in this step (friction law)
@@ -291,7 +291,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         """Close the step's contact force C_n (ContactLaw.end_level) and a_n with it.
 
         The energy of Newmark(beta, 1/2) that the discrete-gradient force conserves is
-        kinetic + elastic + penalty + k^2 (beta - 1/4)/2 a^T M a, with a_n the acceleration
+        kinetic + elastic + penalty + dt^2 (beta - 1/4)/2 a^T M a, with a_n the acceleration
         of the forces C_n the scheme used.  For beta = 1/4 (the trapezoidal rule) the last
         term vanishes, so a_n may hold the pressure at t_n instead, the physical
         acceleration: a_n += M^-1 B_nu^T w (C_n - p(u_n)), a mass solve only in steps in

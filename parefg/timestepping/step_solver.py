@@ -154,22 +154,24 @@ class ContactStepSolver:
         y.copy(direction)
         direction.scale(-1.0)
         un, ut = self.law.kinematics(x)
-        dn, dt = self.law.kinematics(direction)
+        d_nu, d_tau = self.law.kinematics(direction)
         start_slope = self._smooth_residual(x, self._smooth).dot(direction)  # d^T (A x - b)
         curvature = None  # d^T A d, computed only for the scan
 
         def derivative(step):
-            value, slope = self.law.directional(un, ut, dn, dt, step)
+            value, slope = self.law.directional(un, ut, d_nu, d_tau, step)
             return start_slope + step * curvature + value, curvature + slope
 
-        value, _ = self.law.directional(un, ut, dn, dt, 0.0)
+        value, _ = self.law.directional(un, ut, d_nu, d_tau, 0.0)
         if start_slope + value >= 0.0:  # phi'(0)
             self._not_descent(x, start_slope + value)
             self._exact_piece = False
             y.scale(0.0)
             return True
         piece = self.law.piece(un, ut)
-        same_piece = np.all(piece >= 0) and np.array_equal(piece, self.law.piece(un + dn, ut + dt))
+        same_piece = np.all(piece >= 0) and np.array_equal(
+            piece, self.law.piece(un + d_nu, ut + d_tau)
+        )
         self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
         if not self._exact_piece:
             self.a_const.mult(direction, self._product)
