@@ -273,19 +273,10 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self.disc.dirichlet.mult(state.u, work)
         force.axpy(self.scene.alpha_dirichlet, work)
         if self.law is not None:
-            self._add_level_contact_force(self.law, state.u, force)
+            # C(u_{n-1}), the force the last step balanced (ContactLaw.add_level_force); before
+            # the next gate its friction part alpha_T (u_tau - xi_{n-1}) is the last step's
+            self.law.add_level_force(force, *self.law.kinematics(state.u))
         b.axpy(-force_weight, force)
-
-    def _add_level_contact_force(self, law: ContactLaw, u: PETSc.Vec, out: PETSc.Vec) -> None:
-        """out += C(u): the contact and friction force the last step balanced at u = u_{n-1}.
-
-        The one place generalized-alpha evaluates the contact force of a level (the new
-        level's force is the step solver's); a time discretization of contact that changes
-        the force a step balances changes it here too.  Before the next gate, the friction
-        force alpha_T (u_tau - xi_{n-1}) is the last step's (the return mapping left it
-        inside the bound).  Collective.
-        """
-        law.add_level_force(out, *law.kinematics(u))
 
     def _contact_acceleration(self, new: State) -> None:
         """Close the step's contact force C_n (ContactLaw.end_level) and a_n with it.
