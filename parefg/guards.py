@@ -226,13 +226,13 @@ def require_constraints(scene) -> None:
     Without a Dirichlet part and without a contact part, K has the rigid motions in its
     kernel and nothing else enters the static Jacobian.
     """
-    if scene.scheme != "static":
+    if scene.dynamic:
         return
     kinds = {bc.kind for bc in scene.boundaries.values()}
     if kinds & {BoundaryKind.DIRICHLET, BoundaryKind.CONTACT}:
         return
     raise InputError(
-        f'scene {scene.name}: time.scheme = "static" needs a dirichlet or contact boundary '
+        f'scene {scene.name}: time.scheme = "{scene.scheme}" needs a dirichlet or contact boundary '
         "part: without one the rigid motions of the body are not constrained (singular "
         'stiffness); add [boundary.NAME] type = "dirichlet", or use time.scheme = "newmark"'
     )

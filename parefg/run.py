@@ -147,10 +147,26 @@ def prepare(
     checked against the machine first (InputError on every rank).  Nothing is written and
     no step is taken: ``state = sim.start()``, then ``state = sim.step(state, n)`` for
     n = 1 .. ``sim.scene.n_steps``.  ``keep_history`` False keeps only the last row of
-    ``sim.history`` (long runs).  :func:`run_scene` is the whole run with its output.
+    ``sim.history`` (long runs).  The solvers read the scene's [solver] options as in a
+    run (:func:`build_simulation`).  :func:`run_scene` is the whole run with its output.
     """
     scene = load_scene(source, list(overrides))
-    return Simulation(comm, scene, build_discretization(comm, scene), keep_history=keep_history)
+    return build_simulation(comm, scene, build_discretization(comm, scene), keep_history)
+
+
+def build_simulation(comm, scene, disc, keep_history: bool = True) -> Simulation:
+    """The Simulation of ``scene`` on ``disc``, its step solvers configured.  Collective.
+
+    The scene's [solver] options apply (under the command line's) while the solvers read
+    them; a PETSc error meanwhile (an unknown -ksp_type) is an InputError on every rank.
+    The one place a Simulation is made: :func:`prepare` (in-process) and
+    :func:`run_scene` (the whole run) both call it.
+    """
+    with (
+        scene_options(scene.solver_options),
+        petsc_configuration(comm, "the solvers", scene.solver_options),
+    ):
+        return Simulation(comm, scene, disc, keep_history=keep_history)
 
 
 def run_scene(
@@ -243,8 +259,8 @@ def _run(
 
 def _start(comm, scene, disc, restart: str | None):
     """The simulation and the level it starts from: t = 0, or a checkpoint.  Collective."""
+    sim = build_simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
     with petsc_configuration(comm, "the solvers", scene.solver_options):
-        sim = Simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
         state, first = sim.start(), 1  # sets up the mass solve (-mass_ options) too
     if restart is not None:
         snapshot = read_checkpoint(comm, Path(restart), sim)

@@ -12,6 +12,7 @@ from pathlib import Path
 import parefg
 
 PACKAGE = Path(parefg.__file__).parent
+SCRIPTS = PACKAGE.parent / "scripts"
 LAYERS = ("geometry", "discretization", "mechanics", "timestepping", "scene", "io")
 ENTRY_POINTS = ("cli", "commands", "run", "sweep")
 
@@ -79,3 +80,20 @@ def test_no_import_cycles():
     for module in sorted(graph):
         visit(module, [])
     assert cycles == []
+
+
+def test_scripts_do_not_import_test_modules():
+    """Benchmarks take shared scenes from the package (parefg.scene.library), not from tests."""
+    offenders = []
+    for path in sorted(SCRIPTS.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module]
+            elif isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            else:
+                continue
+            top = {name.split(".")[0] for name in names}
+            if any(n.startswith("test_") or n in ("conftest", "tests") for n in top):
+                offenders.append(f"{path.relative_to(SCRIPTS)}:{node.lineno}")
+    assert offenders == []

@@ -9,6 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from mpi4py import MPI
 
 from parefg.boundary import BoundaryKind
 from parefg.discretization import weights
@@ -17,6 +18,11 @@ from parefg.errors import InputError
 from parefg.geometry import shapes
 from parefg.geometry.gmsh_mesh import mesh_domain
 from parefg.geometry.polygon import polygon_problem
+from parefg.io.observers import output_fields
+from parefg.mechanics import normal_force
+from parefg.mechanics.penalty import PENALTY_KINDS
+from parefg.run import prepare
+from parefg.scene import schema
 from parefg.scene.boundaries import BOUNDARY_KEYS
 from parefg.scene.loader import load_scene
 from parefg.timestepping import schemes
@@ -47,7 +53,7 @@ def test_a_registered_shape_is_a_scene_choice(monkeypatch):
 def test_a_registered_scheme_is_a_scene_choice(monkeypatch):
     monkeypatch.setitem(schemes.SCHEMES, "quasistatic", schemes.StaticScheme)
     scene = load_scene("square", ["time.scheme=quasistatic"])
-    assert scene.scheme == "quasistatic"
+    assert scene.scheme == "quasistatic" and not scene.dynamic
     # The body force derived from [exact] follows the scheme's registry entry: a static
     # scheme has no inertia, so f = -div sigma, the same as under "static".
     static = load_scene("square", ["time.scheme=static"])
@@ -85,3 +91,29 @@ def test_scene_and_mesher_refuse_a_polygon_with_one_check(tmp_path):
     with pytest.raises(InputError) as loaded:
         load_scene(str(scene))
     assert _message(meshed).endswith(reason) and _message(loaded).endswith(reason)
+
+
+def test_a_registered_contact_force_is_a_scene_choice(monkeypatch):
+    class Blunt(normal_force.EndpointForce):
+        name = "blunt"
+
+    monkeypatch.setitem(normal_force.CONTACT_FORCES, "blunt", Blunt)
+    assert load_scene("impact", ["time.contact_force=blunt"]).contact_force == "blunt"
+    # the default is the registry's first entry
+    assert load_scene("impact").contact_force == next(iter(normal_force.CONTACT_FORCES))
+
+
+def test_penalty_keys_are_the_registered_kinds():
+    scene = load_scene("square", ["penalty.alpha=5.0", "penalty.alpha_contact=7.0"])
+    assert set(scene.params["penalty"]) == {"alpha"} | {f"alpha_{k}" for k in PENALTY_KINDS}
+    assert (scene.alpha_dirichlet, scene.alpha_contact, scene.alpha_friction) == (5.0, 7.0, 5.0)
+
+
+def test_output_datasets_are_named_by_the_output_registry(monkeypatch):
+    """The writer takes each field's dataset names from OUTPUT_FIELDS, not from a twin."""
+    monkeypatch.setitem(schema.OUTPUT_FIELDS, "u", ("u_h",))
+    sets = ["discretization.h=0.25", "discretization.degree=1", "time.T=0.1"]
+    sim = prepare(MPI.COMM_WORLD, "square", [*sets, "output.fields=['u', 'contact']"])
+    node_fields, contact_fields = output_fields(sim, sim.start())
+    assert set(node_fields) == {"u_h"}
+    assert tuple(contact_fields) == schema.OUTPUT_FIELDS["contact"]

@@ -32,6 +32,7 @@ from parefg.geometry.cloud import (
 )
 from parefg.geometry.jitter import jitter_cloud
 from parefg.geometry.shapes import SHAPES, GmshDomain
+from parefg.parallel import call_on_root
 
 # gmsh element type codes of first-order cells.
 GMSH_TRIANGLE, GMSH_QUAD = 2, 3
@@ -53,8 +54,8 @@ def build_node_cloud(
     """Mesh a domain with gmsh on rank 0 and broadcast the node cloud.
 
     Collective.  Any failure on rank 0 (bad geometry, unreadable .geo, unknown
-    physical name, empty part) is broadcast and raised as :class:`InputError`
-    on every rank, so no rank is left waiting.
+    physical name, empty part) is raised as :class:`InputError` on every rank
+    (:func:`~parefg.parallel.call_on_root`), so no rank is left waiting.
 
     Parameters
     ----------
@@ -73,24 +74,12 @@ def build_node_cloud(
     budget : parefg.discretization.budget.Budget, optional
         Refuses a .geo domain too large for the machine before gmsh meshes it.
     """
-    cloud, failure = None, None
-    if comm.rank == 0:
-        try:
-            cloud = jitter_cloud(mesh_domain(domain, h, cells, budget), jitter, seed)
-        except InputError as exc:
-            failure = ("input", str(exc))
-        except Exception as exc:  # a defect: still end every rank, not only rank 0
-            failure = ("internal", f"{type(exc).__name__}: {exc}")
-            root_exception = exc
-    failure = comm.bcast(failure, root=0)
-    if failure is not None:
-        kind, message = failure
-        if kind == "input":
-            raise InputError(message)
-        if comm.rank == 0:
-            raise root_exception
-        raise RuntimeError(f"node cloud construction failed on rank 0: {message}")
-    return comm.bcast(cloud, root=0)
+    return call_on_root(comm, _jittered_mesh, domain, h, cells, jitter, seed, budget)
+
+
+def _jittered_mesh(domain: dict, h: float, cells: str, jitter: float, seed: int, budget):
+    """:func:`build_node_cloud` on one rank: the meshed, jittered cloud."""
+    return jitter_cloud(mesh_domain(domain, h, cells, budget), jitter, seed)
 
 
 @contextlib.contextmanager

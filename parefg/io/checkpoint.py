@@ -120,7 +120,7 @@ def read_checkpoint(comm, path: Path, sim) -> dict:
     where = f"--restart {_shown(path)}"
     attrs = call_on_root(comm, check_checkpoint, path, sim)
     snapshot: dict[str, Any] = dict(step=attrs["step"], history=attrs["history"])
-    snapshot["time"] = attrs["step"] * sim.scheme.k
+    snapshot["time"] = attrs["step"] * sim.scheme.dt
     with open_h5(comm, path, "r") as handle:
         for name, rows in _layout(comm, sim):
             values = rows.read(handle[name]).astype(float, copy=False)

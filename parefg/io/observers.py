@@ -13,9 +13,7 @@ from parefg.io.checkpoint import write_checkpoint
 from parefg.io.output import ResultWriter
 from parefg.mechanics.elasticity import von_mises
 from parefg.profiling import phase
-
-# [output] fields -> node datasets of each (the "contact" entry writes the Gamma_C fields)
-NODE_FIELDS = {"u": "displacement", "v": "velocity", "a": "acceleration", "von_mises": "von_mises"}
+from parefg.scene.schema import OUTPUT_FIELDS
 
 
 def is_output_step(n: int, scene) -> bool:
@@ -34,22 +32,26 @@ def output_fields(sim, state) -> tuple[dict, dict]:
     """
     nodes, scene, wanted = sim.disc.nodes, sim.scene, set(sim.scene.output_fields)
     vectors = {"u": state.u, "v": state.v, "a": state.a}
+    # each node field writes one dataset, named by the registry
     node_fields = {
-        NODE_FIELDS[key]: nodes.evaluate(vector) for key, vector in vectors.items() if key in wanted
+        OUTPUT_FIELDS[key][0]: nodes.evaluate(vector)
+        for key, vector in vectors.items()
+        if key in wanted
     }
     if "von_mises" in wanted:
         grads = nodes.evaluate_gradient(state.u)
-        node_fields["von_mises"] = von_mises(scene.lam, scene.mu, grads)
+        node_fields[OUTPUT_FIELDS["von_mises"][0]] = von_mises(scene.lam, scene.mu, grads)
     contact_fields = {}
     if sim.law is not None and "contact" in wanted:
         law = sim.law
         un = law.kinematics(state.u)[0]
-        contact_fields = {
+        values = {
             "gap": law.gap - un,
             "normal_pressure": law.pressure(un),
             "tangential_traction": law.step_friction,
             "status": law.step_status,
         }
+        contact_fields = {name: values[name] for name in OUTPUT_FIELDS["contact"]}
     return node_fields, contact_fields
 
 

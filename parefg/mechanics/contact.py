@@ -1,7 +1,8 @@
 """Penalty contact and return-mapping Tresca friction at the Gamma_C quadrature points (SPEC 4).
 
 At each of this rank's Gamma_C points q (weight w_q, outward normal nu_q, tangent
-tau_q = (-nu_2, nu_1)) with u_nu = nu . u_h, u_tau = tau . u_h:
+tau_q = (-nu_2, nu_1), :class:`~parefg.mechanics.contact_frame.ContactFrame`) with
+u_nu = nu . u_h, u_tau = tau . u_h:
 
     normal pressure   p_q = alpha_C (u_nu - s)^+                      (>= 0)
     friction force    f_q = clip(alpha_T (u_tau - xi_q), -g_q, g_q)    (xi: accumulated slip)
@@ -14,14 +15,16 @@ alpha_C B_nu^T W B_nu on closed points and alpha_T B_tau^T W B_tau on sticking o
 Everything is piecewise linear in u, so the energy along a Newton direction is convex
 piecewise quadratic (see :meth:`ContactLaw.directional`).
 
-Time discretization of the normal force (``[time] contact_force``).  "endpoint" puts
+Time discretization of the normal force (``[time] contact_force``, one of
+:data:`parefg.mechanics.normal_force.CONTACT_FORCES`).  "endpoint" puts
 p(u_n) in step n; the trapezoidal rule then averages p(u_{n-1}) and p(u_n), which is not
 the work the penalty stores when a point crosses the obstacle within the step (measured:
 the impact scene gains 5.7x at beta = 1/4).  "discrete_gradient" (default; Armero &
 Petocz 1998, Hauret & Le Tallec 2006) puts C_n = 2 DG(d_{n-1}, d_n) - C_{n-1} in the
 step, DG the discrete gradient of phi(d) = alpha_C/2 (d^+)^2 (d = u_nu - s), so that
 (C_{n-1} + C_n)/2 (d_n - d_{n-1}) = phi(d_n) - phi(d_{n-1}) exactly.  C_n is nondecreasing
-in d_n with a closed-form convex primitive (:func:`dg_potential`): J_n stays convex and
+in d_n with a closed-form convex primitive
+(:func:`~parefg.mechanics.discrete_gradient.dg_potential`): J_n stays convex and
 the exact line search keeps its guarantee.  While C_{n-1} is the pressure at u_{n-1}
 (always at beta = 1/4: Simulation._contact_acceleration), C_n is the endpoint force at
 every point that does not cross; at a crossing point it is a rational function of d_n
@@ -47,14 +50,16 @@ from petsc4py import PETSc
 
 from parefg.boundary import BoundaryKind
 from parefg.guards import DataGuard
-from parefg.mechanics.discrete_gradient import crossings, dg_potential, dg_pressure, dg_slope
+from parefg.mechanics.contact_frame import ContactFrame
+from parefg.mechanics.discrete_gradient import crossings
 from parefg.mechanics.friction import FRICTION_LAWS, PRESSURE_LAWS, coulomb_bound
-from parefg.parallel import owned_rows, petsc_matrix
+from parefg.mechanics.normal_force import CONTACT_FORCES, EndpointForce, NormalForce
+from parefg.parallel import owned_rows
 
 OPEN, STICK, SLIP = 0, 1, 2
 
 
-class ContactLaw:
+class ContactLaw(ContactFrame):
     """Contact and friction state of this rank's Gamma_C points.  Construction is collective.
 
     The gap and the friction bound are evaluated through ``guard`` (a
@@ -63,26 +68,15 @@ class ContactLaw:
     """
 
     def __init__(self, comm, disc, scene, guard: DataGuard | None = None):
-        points = disc.contact
-        self.comm = comm
+        super().__init__(comm, disc.contact)
         self.guard = DataGuard(comm, scene) if guard is None else guard
-        self.weights = points.weights  # (n_c,)
-        self.points = points.points  # (n_c, 2)
-        normals = points.normals  # (n_c, 2)
-        self.tangents = np.column_stack([-normals[:, 1], normals[:, 0]])  # (n_c, 2)
-        self.normals = normals
         self.alpha_c, self.alpha_t = scene.alpha_contact, scene.alpha_friction
         # the discrete gradient needs a previous level: static load steps use the endpoint
-        dynamic = scene.scheme != "static"
-        self.contact_force = scene.contact_force if dynamic else "endpoint"
+        self.normal_force: type[NormalForce] = (
+            CONTACT_FORCES[scene.contact_force] if scene.dynamic else EndpointForce
+        )
         self.dof_ranges = 2 * disc.partition.node_ranges
-        bcs = [scene.boundaries[name] for name in disc.cloud.part_names if name in scene.boundaries]
-        self._bcs = {
-            disc.cloud.part_names.index(bc.name): bc
-            for bc in bcs
-            if bc.kind == BoundaryKind.CONTACT
-        }
-        self.part = points.part
+        self._bcs = _contact_parts(disc.cloud.part_names, scene.boundaries)
         self.has_friction = not all(bc.friction_is_zero for bc in self._bcs.values())
         self.gap = self._per_part("gap", lambda bc, x, y, n: bc.gap(x, y), 0.0)
         self._init_coulomb()
@@ -95,31 +89,6 @@ class ContactLaw:
         self.level_pressure = np.zeros(len(self.weights))
         self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
         self.step_friction = np.zeros(len(self.weights))
-        # rotated value operator: rows 2q = nu_q . u_h(x_q), 2q + 1 = tau_q . u_h(x_q)
-        # kron(S, I_2) of the scalar value operator: rows 2q, 2q + 1 = (u_x, u_y)(x_q)
-        values = sp.kron(_scipy_from_petsc(points.values), sp.identity(2), format="csr")
-        n_points = len(normals)
-        q = np.arange(n_points)
-        rotation = sp.csr_matrix(
-            (
-                np.concatenate(
-                    [normals[:, 0], normals[:, 1], self.tangents[:, 0], self.tangents[:, 1]]
-                ),
-                (
-                    np.concatenate([2 * q, 2 * q, 2 * q + 1, 2 * q + 1]),
-                    np.concatenate([2 * q, 2 * q + 1, 2 * q, 2 * q + 1]),
-                ),
-            ),
-            shape=(2 * n_points, 2 * n_points),
-        )
-        local = (rotation @ values).tocsr()
-        self.normal_op = local[0::2]  # (n_c, n_dofs) scipy, for the Jacobian
-        self.tangent_op = local[1::2]
-        self.operator = petsc_matrix(
-            comm, local, 2 * points.values.getLocalSize()[1], 2 * points.values.getSize()[1]
-        )
-        # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
-        self._point_vec = self.operator.createVecLeft()
 
     def _init_coulomb(self) -> None:
         """mu_f at the points of Coulomb parts (0 elsewhere); has_coulomb on every rank."""
@@ -195,21 +164,14 @@ class ContactLaw:
             self.acting[on] = law(un_predicted[on], self.gap[on])
         self.bound = np.where(self.acting, self.bound_data, 0.0)
 
-    def kinematics(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
-        """(u_nu, u_tau) at the points.  Collective."""
-        out = self._point_vec
-        self.operator.mult(u, out)
-        values = out.getArray().reshape(-1, 2)
-        return values[:, 0].copy(), values[:, 1].copy()
-
     @contextmanager
     def endpoint_force(self):
         """Within the block the normal force is the pressure at u (a static problem)."""
-        saved, self.contact_force = self.contact_force, "endpoint"
+        saved, self.normal_force = self.normal_force, EndpointForce
         try:
             yield self
         finally:
-            self.contact_force = saved
+            self.normal_force = saved
 
     def begin_step(self, u_start: PETSc.Vec) -> None:
         """Record d_{n-1} = u_nu - s at the start of the step, for the step force.  Collective."""
@@ -235,12 +197,6 @@ class ContactLaw:
         pressure = self.pressure(un)
         self.level_pressure = pressure
         return self.weights * (step - pressure)
-
-    def point_vector(self, normal: np.ndarray) -> PETSc.Vec:
-        """The work vector at the points, holding (normal_q, 0) (overwritten by later calls)."""
-        out = self._point_vec
-        out.setArray(np.column_stack([normal, np.zeros_like(normal)]).ravel())
-        return out
 
     def crossing(self, un) -> np.ndarray:
         """(n_c,) bool: the step crossed the obstacle (d = 0) at the point."""
@@ -282,7 +238,7 @@ class ContactLaw:
             z = self.alpha_t * (ut - self.slip)
             friction_state = np.where(z >= self.bound, 1, np.where(z <= -self.bound, 2, 0))
             code = code + 2 * friction_state.astype(np.int8)
-        if self.contact_force == "discrete_gradient":
+        if self.normal_force.uses_start_level:
             code = np.where(self.crossing(un), -1, code).astype(np.int8)
         return code
 
@@ -297,16 +253,9 @@ class ContactLaw:
         the pressure at u_n after a crossing; the friction part is the last step's.
         """
         pressure, friction = self.forces(un, ut)
-        if self.contact_force == "discrete_gradient":
+        if self.normal_force.uses_start_level:
             pressure = self.level_pressure
         self._add_point_forces(residual, pressure, friction)
-
-    def _add_point_forces(self, residual: PETSc.Vec, pressure, friction) -> None:
-        point_forces = self._point_vec
-        point_forces.setArray(
-            np.column_stack([pressure, friction]).ravel() * np.repeat(self.weights, 2)
-        )
-        self.operator.multTransposeAdd(point_forces, residual, residual)
 
     def active_weights(self, un, ut) -> tuple[np.ndarray, np.ndarray]:
         """Jacobian weights of the active set: w alpha_C on closed, w alpha_T on sticking points.
@@ -337,34 +286,18 @@ class ContactLaw:
         return self.alpha_c * self._penetration(un)
 
     def step_pressure(self, un) -> np.ndarray:
-        """Normal force of the step at the points (``[time] contact_force``).
-
-        "endpoint": the pressure at the end of the step, alpha_C (u_nu - s)^+.
-        "discrete_gradient": C_n = 2 DG(d_{n-1}, d_n) - C_{n-1} (:func:`dg_pressure` is
-        2 DG - alpha_C d_{n-1}^+), with C_{n-1} the force of the start level; with
-        C_{n-1} the pressure there, it differs from the endpoint force only at points that
-        cross the obstacle within the step.
-        """
-        if self.contact_force == "endpoint":
-            return self.pressure(un)
-        return dg_pressure(self.start_penetration, un - self.gap, self.alpha_c) + self._shift()
-
-    def _shift(self) -> np.ndarray:
-        """alpha_C d_{n-1}^+ - C_{n-1}: zero when the start level holds the pressure."""
-        return self.alpha_c * np.maximum(self.start_penetration, 0.0) - self.level_pressure
+        """Normal force C_n of the step at the points (``[time] contact_force``)."""
+        force, d0 = self.normal_force, self.start_penetration
+        return force.pressure(d0, un - self.gap, self.alpha_c, self.level_pressure)
 
     def step_slope(self, un) -> np.ndarray:
         """d(step_pressure)/d u_nu at the points (>= 0)."""
-        if self.contact_force == "endpoint":
-            return self.alpha_c * (un > self.gap)
-        return dg_slope(self.start_penetration, un - self.gap, self.alpha_c)
+        return self.normal_force.slope(self.start_penetration, un - self.gap, self.alpha_c)
 
     def _step_potential(self, un) -> np.ndarray:
         """Primitive of :meth:`step_pressure` in u_nu (convex): the step's contact energy."""
-        if self.contact_force == "endpoint":
-            return self._normal_potential(un)
-        d1 = un - self.gap
-        return dg_potential(self.start_penetration, d1, self.alpha_c) + self._shift() * d1
+        force, d0 = self.normal_force, self.start_penetration
+        return force.potential(d0, un - self.gap, self.alpha_c, self.level_pressure)
 
     def _normal_potential(self, un) -> np.ndarray:
         """alpha_C/2 ((u_nu - s)^+)^2 at the points."""
@@ -394,19 +327,21 @@ class ContactLaw:
         z = ut - self.slip
         return self.comm.allreduce(np.dot(self.weights, 0.5 * self.alpha_t * z**2), op=MPI.SUM)
 
-    def directional(self, un, ut, dn, dt, step) -> tuple[float, float]:
+    def directional(self, un, ut, d_nu, d_tau, step) -> tuple[float, float]:
         """Derivative and slope of the contact energy along u + step d.  Collective.
 
-        Returns (sum_q w_q [dn_q p_q + dt_q f_q], sum_q w_q [alpha_C dn_q^2 closed_q +
-        alpha_T dt_q^2 stick_q]) evaluated at u + step d: the value and the slope of the
-        current linear piece of the (monotone, piecewise linear) directional derivative.
+        ``d_nu``, ``d_tau`` are the normal and tangential components of the direction d at
+        the points.  Returns (sum_q w_q [d_nu p_q + d_tau f_q], sum_q w_q [alpha_C d_nu^2
+        closed_q + alpha_T d_tau^2 stick_q]) evaluated at u + step d: the value and the
+        slope of the current linear piece of the (monotone, piecewise linear) directional
+        derivative.
         """
-        un_s, ut_s = un + step * dn, ut + step * dt
+        un_s, ut_s = un + step * d_nu, ut + step * d_tau
         pressure, friction = self.forces(un_s, ut_s)
-        value = np.dot(self.weights, dn * pressure + dt * friction)
-        slope = np.dot(self.weights, self.step_slope(un_s) * dn**2)
+        value = np.dot(self.weights, d_nu * pressure + d_tau * friction)
+        slope = np.dot(self.weights, self.step_slope(un_s) * d_nu**2)
         if self.has_friction:
-            slope += np.dot(self.weights, self.alpha_t * dt**2 * ~self._sliding(ut_s))
+            slope += np.dot(self.weights, self.alpha_t * d_tau**2 * ~self._sliding(ut_s))
         return tuple(self.comm.allreduce(np.array([value, slope]), op=MPI.SUM))
 
     def end_step(self, un, ut) -> float:
@@ -429,7 +364,10 @@ class ContactLaw:
         return self.comm.allreduce(np.dot(self.weights, self.bound * np.abs(increment)), op=MPI.SUM)
 
 
-def _scipy_from_petsc(matrix: PETSc.Mat) -> sp.csr_matrix:
-    """This rank's rows of a PETSc AIJ matrix as scipy CSR with global columns."""
-    indptr, indices, data = matrix.getValuesCSR()
-    return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, matrix.getSize()[1]))
+def _contact_parts(part_names: list[str], boundaries: dict) -> dict:
+    """Part id (index in the cloud's part names) -> boundary condition of each contact part."""
+    return {
+        part_id: boundaries[name]
+        for part_id, name in enumerate(part_names)
+        if name in boundaries and boundaries[name].kind == BoundaryKind.CONTACT
+    }

@@ -22,7 +22,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from parefg.errors import InputError
-from parefg.scene.schema import PENALTY_KINDS, elastic_constants, plain_name, step_count, validate
+from parefg.mechanics.penalty import PENALTY_KINDS
+from parefg.scene.schema import elastic_constants, plain_name, step_count, validate
 from parefg.timestepping.schemes import SCHEMES
 
 if TYPE_CHECKING:  # the expression modules import sympy: loaded by _build, when needed
@@ -56,6 +57,7 @@ class Scene:
     mu: float
     rho: float
     scheme: str
+    dynamic: bool  # the scheme has inertia (SCHEMES[scheme].dynamic)
     T: float
     dt: float
     beta: float
@@ -189,11 +191,11 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
     discretization, time = params["discretization"], params["time"]
     E, nu, lam, mu = elastic_constants(params["material"])
     rho = params["material"]["rho"]
+    dynamic = SCHEMES[time["scheme"]].dynamic
     manufactured = None
     if "exact" in params:
         exact_u = fields.scene_expressions(where, "exact.u", params["exact"]["u"])
         derivatives = DerivativeBudget(where, "exact.u")
-        dynamic = SCHEMES[time["scheme"]].dynamic
         manufactured = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
     checks = SignChecks(where, params, E)
     initial_grad, initial_div_stress = initial_elasticity(
@@ -214,6 +216,7 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         mu=mu,
         rho=rho,
         **{key: time[key] for key in ("scheme", "T", "dt", "beta", "gamma", "contact_force")},
+        dynamic=dynamic,
         rho_inf=time.get("rho_inf"),
         n_steps=step_count(where, time),
         **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS},

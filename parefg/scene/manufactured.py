@@ -22,8 +22,9 @@ from parefg.scene.symbolic import DerivativeBudget, is_identically_zero
 
 @dataclass
 class ExactSolution:
-    """A manufactured solution: ``u(x, y, t) -> (2, n)``, ``v`` = du/dt ``-> (2, n)``,
-    ``grad(x, y, t) -> (2, 2, n)`` with ``[i, j] = d u_i / d x_j``; ``exprs`` in sympy."""
+    """A manufactured solution: ``u(x, y, t) -> (d, n)``, ``v`` = du/dt ``-> (d, n)``,
+    ``grad(x, y, t) -> (d, d, n)`` with ``[i, j] = d u_i / d x_j``; ``exprs`` in sympy
+    (d = 2: plane strain)."""
 
     exprs: list[sympy.Expr]
     u: Field
@@ -53,22 +54,26 @@ class ManufacturedSolution:
         budget: DerivativeBudget,
     ):
         x, y, t, nx, ny = (SYMBOLS[s] for s in ("x", "y", "t", "nx", "ny"))
+        coordinates = (x, y)
+        d = len(coordinates)  # the dimension: only the traction below is planar
         diff = budget.diff
         self.u = u
-        self.grad = sympy.Matrix(2, 2, lambda i, j: diff(u[i], (x, y)[j]))
+        self.grad = sympy.Matrix(d, d, lambda i, j: diff(u[i], coordinates[j]))
         self.velocity = [diff(ui, t) for ui in u]
         eps = (self.grad + self.grad.T) / 2
-        sigma = sympy.Float(lam) * eps.trace() * sympy.eye(2) + 2 * sympy.Float(mu) * eps
-        div_sigma = [diff(sigma[i, 0], x) + diff(sigma[i, 1], y) for i in range(2)]
+        sigma = sympy.Float(lam) * eps.trace() * sympy.eye(d) + 2 * sympy.Float(mu) * eps
+        div_sigma = [
+            sympy.Add(*(diff(sigma[i, j], coordinates[j]) for j in range(d))) for i in range(d)
+        ]
         self.div_sigma = div_sigma
         inertia = [sympy.Float(rho) * diff(vi, t) for vi in self.velocity]
         if not dynamic:  # a static scheme: no inertia
-            inertia = [0, 0]
+            inertia = [0] * d
         traction = sigma * sympy.Matrix([nx, ny])
         tangential = -ny * traction[0] + nx * traction[1]
         budget.charge(*traction, tangential)
         self.derived = {
-            "f": [inertia[i] - div_sigma[i] for i in range(2)],
+            "f": [inertia[i] - div_sigma[i] for i in range(d)],
             "value": list(u),
             "traction": list(traction),
             "friction": [sympy.Abs(tangential)],
@@ -78,11 +83,12 @@ class ManufacturedSolution:
 
     def solution(self) -> ExactSolution:
         """Vectorized u, v and grad u."""
-        gradient = compile_field([self.grad[i, j] for i in range(2) for j in range(2)])
+        d = self.grad.shape[0]
+        gradient = compile_field([self.grad[i, j] for i in range(d) for j in range(d)])
 
         def grad(x, y, t):
-            rows = gradient(x, y, t)  # (4, n), row 2 i + j = d u_i / d x_j
-            return rows.reshape(2, 2, *rows.shape[1:])
+            rows = gradient(x, y, t)  # (d^2, n), row d i + j = d u_i / d x_j
+            return rows.reshape(d, d, *rows.shape[1:])
 
         return ExactSolution(
             exprs=list(self.u),
@@ -110,10 +116,11 @@ def initial_elasticity(
         return None, None
     derivatives = DerivativeBudget(where, "initial.u")
     initial = ManufacturedSolution(exprs, lam, mu, rho, False, derivatives)
-    gradient = compile_field([initial.grad[i, j] for i in range(2) for j in range(2)], ("x", "y"))
+    d = initial.grad.shape[0]
+    gradient = compile_field([initial.grad[i, j] for i in range(d) for j in range(d)], ("x", "y"))
 
     def grad(x, y):
-        rows = gradient(x, y)  # (4, n), row 2 i + j = d u0_i / d x_j
-        return rows.reshape(2, 2, *rows.shape[1:])
+        rows = gradient(x, y)  # (d^2, n), row d i + j = d u0_i / d x_j
+        return rows.reshape(d, d, *rows.shape[1:])
 
     return grad, compile_field(initial.div_sigma, ("x", "y"))

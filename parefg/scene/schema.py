@@ -5,7 +5,9 @@ Each section is a :class:`~parefg.scene.table.Table` read by one function below 
 allowed names of interchangeable parts are read from their registries, not listed here:
 domain shapes and their keys from :data:`parefg.geometry.shapes.SHAPES`, weights from
 :data:`parefg.discretization.weights.WEIGHTS`, friction laws from
-:data:`parefg.mechanics.friction.FRICTION_LAWS`, time schemes from
+:data:`parefg.mechanics.friction.FRICTION_LAWS`, contact forces from
+:data:`parefg.mechanics.normal_force.CONTACT_FORCES`, penalty factors from
+:data:`parefg.mechanics.penalty.PENALTY_KINDS`, time schemes from
 :data:`parefg.timestepping.schemes.SCHEMES`, solver methods from
 :data:`parefg.timestepping.linear_solver.SOLVER_METHODS`, boundary types from
 :class:`parefg.boundary.BoundaryKind`.  :func:`validate` returns the effective params,
@@ -25,6 +27,8 @@ from parefg.geometry.geo import load_geo
 from parefg.geometry.gmsh_mesh import CELL_TYPES
 from parefg.geometry.jitter import MAX_JITTER
 from parefg.geometry.shapes import DEFAULT_SHAPE, SHAPES, domain_part_names
+from parefg.mechanics.normal_force import CONTACT_FORCES
+from parefg.mechanics.penalty import PENALTY_KINDS
 from parefg.scene.boundaries import read_boundaries
 from parefg.scene.table import (
     POSITIVE,
@@ -72,16 +76,20 @@ PLAIN_NAME_RULE = (
 )
 DEFAULT_SCHEME = next(iter(SCHEMES))
 DEFAULT_RHO_INF = 0.8  # generalized-alpha: mild high-frequency damping, second order
-# [time] contact_force: the penalty contact force of a time step (parefg.mechanics.contact)
-CONTACT_FORCES = ("discrete_gradient", "endpoint")
-OUTPUT_FIELDS = ("u", "v", "a", "von_mises", "contact")
+#: [output] fields -> the result.h5 datasets each writes (parefg.io.observers)
+OUTPUT_FIELDS = {
+    "u": ("displacement",),
+    "v": ("velocity",),
+    "a": ("acceleration",),
+    "von_mises": ("von_mises",),
+    "contact": ("gap", "normal_pressure", "tangential_traction", "status"),
+}
 OUTPUT_FRAMES = 50  # default time series: about this many output steps per run
 # dilation s per MLS degree m; measured: at m = 2, s = 3.2 cuts the H1 error at h = 1/32
 # five-fold against s = 2.6 (README, accuracy section)
 DEFAULT_SUPPORT = {1: 2.0, 2: 3.2, 3: 4.0}
 # Gauss points per cell direction: MLS shape functions are rational, so m >= 2 needs more
 DEFAULT_QUADRATURE = {1: 3, 2: 5, 3: 7}
-PENALTY_KINDS = ("dirichlet", "contact", "friction")
 STEP_TOLERANCE = 1e-9  # relative distance of T / dt from an integer
 MAX_STEPS = 10**9  # beyond this T / dt is a typo, and is no longer checked as an integer
 
@@ -176,7 +184,7 @@ def _read_time(table: Table) -> None:
     beta = table.take("beta", as_number, 0.5, (lambda v: 0 < v <= 1, "must be in (0, 1]"))
     gamma = table.take("gamma", as_number, 0.5, (lambda v: 0.5 <= v <= 1, "must be in [0.5, 1]"))
     _read_rho_inf(table, scheme)
-    table.take("contact_force", one_of(*CONTACT_FORCES), CONTACT_FORCES[0])
+    table.take("contact_force", one_of(*CONTACT_FORCES), next(iter(CONTACT_FORCES)))
     if SCHEMES[scheme] is NewmarkScheme and 2 * beta < gamma:
         raise table.fail(
             "beta",

@@ -11,7 +11,7 @@ of :class:`~parefg.timestepping.step_solver.ContactStepSolver` with the bound fr
 so the exact line search keeps its guarantee inside every solve.  Starting from the last
 step's pressure, not the predictor's, was measured 3x cheaper on a sliding block (m = 1,
 h = 1/16, beta = 0.3025, gamma = 0.6: 804 against 2383 Newton iterations over 50 steps):
-the predictor carries k^2 (1/2 - beta) a, which is large where the penalty acts.  The
+the predictor carries dt^2 (1/2 - beta) a, which is large where the penalty acts.  The
 first step of a run starts from the predictor's pressure; a restart from the checkpointed
 u_{n-1} (:meth:`CoulombStepSolver.resume`), so it repeats the uninterrupted run.
 
@@ -31,7 +31,9 @@ Cholesky), and it stalled where the sliding block stops, at every mu_f of 0.3 ..
 where the fixed point passes.  The fixed point contracts more slowly as mu_f grows: at
 most 6, 9, 10, 15 and 44 outer iterations per step on the block for mu_f = 0.1, 0.3, 0.5,
 1 and 2.  Beyond ``-coulomb_max_it`` outer iterations (default :data:`DEFAULT_MAX_OUTER`)
-the step fails with a SolverError naming the residuals.
+the step fails with a SolverError naming the residuals.  The option is read under the
+options prefix of the step's SNES, like the -snes_max_it of the inner solves (the
+command line or the scene's [solver] table set it).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from parefg.errors import SolverError
+from parefg.errors import InputError, SolverError
 from parefg.timestepping.linear_solver import DEFAULT_SOLVER_METHOD
 from parefg.timestepping.step_solver import ContactStepSolver
 
@@ -56,10 +58,24 @@ class CoulombStepSolver(ContactStepSolver):
 
     def __init__(self, comm, a_const: PETSc.Mat, law, method: str = DEFAULT_SOLVER_METHOD):
         super().__init__(comm, a_const, law, method)
-        self.max_outer = PETSc.Options().getInt("coulomb_max_it", DEFAULT_MAX_OUTER)
+        self.max_outer_option = f"-{self.snes.getOptionsPrefix() or ''}coulomb_max_it"
+        self.max_outer = self._read_max_outer()
         self.outer_iterations = 0
         self.outer_residuals: list[float] = []
         self._previous_normal: np.ndarray | None = None  # u_nu of the last step, this rank
+
+    def _read_max_outer(self) -> int:
+        """-coulomb_max_it with the SNES's prefix; InputError unless >= 1.  Not collective.
+
+        Every rank reads the same options and so decides alike; a value that is not an
+        integer is PETSc's error, which the caller's petsc_configuration turns into an
+        InputError.
+        """
+        options = PETSc.Options(self.snes.getOptionsPrefix())
+        max_outer = options.getInt("coulomb_max_it", DEFAULT_MAX_OUTER)
+        if max_outer < 1:
+            raise InputError(f"{self.max_outer_option} {max_outer}: must be at least 1")
+        return max_outer
 
     def resume(self, u_previous: PETSc.Vec) -> None:
         """Start the next step's fixed point from the pressure of ``u_previous`` (restart).
@@ -103,6 +119,6 @@ class CoulombStepSolver(ContactStepSolver):
         return (
             f"the fixed point on the friction bound did not converge: residual {last:.3g} "
             f"above the step tolerance {self.tolerance:.3g} after {len(residuals)} outer "
-            f"iterations (-coulomb_max_it {self.max_outer}){rate}; a smaller "
+            f"iterations ({self.max_outer_option} {self.max_outer}){rate}; a smaller "
             "friction_coefficient or time.dt makes it contract"
         )

@@ -70,7 +70,7 @@ class EnergyLedger:
             "external_work": work,
         }
         row.update(self._coulomb_row(getattr(self.solver, "outer_iterations", 0)))
-        self._check_row(row, int(round(t / self.scheme.k)))
+        self._check_row(row, int(round(t / self.scheme.dt)))
         self.history.append(row)
         if not self.keep_history:
             del self.history[:-1]
@@ -122,7 +122,7 @@ class EnergyLedger:
             ubar = self._dirichlet_value(name, t)
             diff = points.evaluate(u) - ubar
             energy += np.dot(points.weights, np.sum(diff**2, axis=1))
-            # Without a previous level (start, resume) the work is not used: no ubar(t - k),
+            # Without a previous level (start, resume) the work is not used: no ubar(t - dt),
             # which may lie outside the data's domain (t < 0).
             old_ubar, old_diff = previous.get(name, (ubar, diff))
             mean_force = 0.5 * (diff + old_diff)

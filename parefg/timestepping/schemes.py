@@ -9,7 +9,7 @@ owns (the time loop allocates its work vectors once per run).  Each step minimiz
 i.e. solves A_const u - b_n + contact forces = 0 with A_const = c_M M + K + alpha_D G_D
 (assembled once) and b_n = c_M M ut_n + F_n + alpha_D g_D(t_n) (+ the previous level's
 balance for generalized-alpha, see :attr:`GeneralizedAlphaScheme.history`).  Newmark has
-c_M = 1 / (beta k^2); the static scheme has c_M = 0 and steps the loads only.
+c_M = 1 / (beta dt^2); the static scheme has c_M = 0 and steps the loads only.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ class State:
 
 
 class NewmarkScheme:
-    """Newmark(beta, gamma): predictor ut, vt; a = (u - ut)/(beta k^2), v = vt + gamma k a."""
+    """Newmark(beta, gamma): predictor ut, vt; a = (u - ut)/(beta dt^2), v = vt + gamma dt a."""
 
     name = "newmark"
     dynamic = True
@@ -44,16 +44,16 @@ class NewmarkScheme:
     history: tuple[float, float] | None = None
 
     def __init__(self, scene):
-        self.k, self.beta, self.gamma = scene.dt, scene.beta, scene.gamma
+        self.dt, self.beta, self.gamma = scene.dt, scene.beta, scene.gamma
 
     @property
     def mass_coefficient(self) -> float:
-        return 1.0 / (self.beta * self.k**2)
+        return 1.0 / (self.beta * self.dt**2)
 
     @property
     def acceleration_coefficient(self) -> float:
-        """1 / (beta k^2): a_n = (u_n - ut_n) / (beta k^2)."""
-        return 1.0 / (self.beta * self.k**2)
+        """1 / (beta dt^2): a_n = (u_n - ut_n) / (beta dt^2)."""
+        return 1.0 / (self.beta * self.dt**2)
 
     @property
     def trapezoidal(self) -> bool:
@@ -62,12 +62,12 @@ class NewmarkScheme:
 
     def predict(self, state: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
         """ut, vt (overwritten) from the previous level ``state``."""
-        k, beta, gamma = self.k, self.beta, self.gamma
+        dt, beta, gamma = self.dt, self.beta, self.gamma
         state.u.copy(ut)
-        ut.axpy(k, state.v)
-        ut.axpy(k * k * (0.5 - beta), state.a)
+        ut.axpy(dt, state.v)
+        ut.axpy(dt * dt * (0.5 - beta), state.a)
         state.v.copy(vt)
-        vt.axpy(k * (1.0 - gamma), state.a)
+        vt.axpy(dt * (1.0 - gamma), state.a)
 
     def update(self, state: State, new: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
         """new.v, new.a (overwritten) from the solved new.u and the predictors."""
@@ -76,7 +76,7 @@ class NewmarkScheme:
         a.axpy(-1.0, ut)
         a.scale(self.acceleration_coefficient)
         vt.copy(v)
-        v.axpy(self.gamma * self.k, a)
+        v.axpy(self.gamma * self.dt, a)
 
 
 def generalized_alpha_parameters(rho_inf: float) -> dict[str, float]:
@@ -109,7 +109,7 @@ class GeneralizedAlphaScheme(NewmarkScheme):
         r(u, t) = (K + alpha_D G_D) u - F(t) - alpha_D g_D(t) + C(u)    (C: contact, friction)
 
     Divided by (1 - alpha_f), the step is Newmark's convex minimization with the stiffness
-    coefficient 1 and c_M = (1 - alpha_m) / ((1 - alpha_f) beta k^2): the contact energy
+    coefficient 1 and c_M = (1 - alpha_m) / ((1 - alpha_f) beta dt^2): the contact energy
     and its penalty enter unchanged, at u_n (the law, the Jacobian and the exact line search
     are Newmark's).  The previous level enters b_n through :attr:`history`.  rho_inf = 1
     is Newmark(1/4, 1/2): its balance at t_{n-1} makes the history term vanish.
@@ -118,7 +118,7 @@ class GeneralizedAlphaScheme(NewmarkScheme):
     name = "generalized-alpha"
 
     def __init__(self, scene):
-        self.k, self.rho_inf = scene.dt, scene.rho_inf
+        self.dt, self.rho_inf = scene.dt, scene.rho_inf
         parameters = generalized_alpha_parameters(self.rho_inf)
         self.alpha_m, self.alpha_f = parameters["alpha_m"], parameters["alpha_f"]
         self.beta, self.gamma = parameters["beta"], parameters["gamma"]
@@ -127,7 +127,7 @@ class GeneralizedAlphaScheme(NewmarkScheme):
 
     @property
     def mass_coefficient(self) -> float:
-        return (1.0 - self.alpha_m) / ((1.0 - self.alpha_f) * self.beta * self.k**2)
+        return (1.0 - self.alpha_m) / ((1.0 - self.alpha_f) * self.beta * self.dt**2)
 
 
 class StaticScheme:
@@ -140,7 +140,7 @@ class StaticScheme:
     trapezoidal = False
 
     def __init__(self, scene):
-        self.k = scene.dt
+        self.dt = scene.dt
 
     def predict(self, state: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
         state.u.copy(ut)
@@ -149,7 +149,7 @@ class StaticScheme:
     def update(self, state: State, new: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
         new.u.copy(new.v)
         new.v.axpy(-1.0, state.u)
-        new.v.scale(1.0 / self.k)
+        new.v.scale(1.0 / self.dt)
         state.a.copy(new.a)
 
 

@@ -195,7 +195,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
 
     def resume(self, state: State, step: int, last_row: dict) -> State:
         """Continue from a checkpointed state after ``step`` (see parefg.io.checkpoint)."""
-        t = step * self.scheme.k
+        t = step * self.scheme.dt
         self.external_forces(t, self._last_forces)
         self._spare = None
         self._dirichlet_previous = {}
@@ -225,7 +225,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         if self.law is not None:
             snapshot["slip"] = np.array(self.law.slip, dtype=float)
             snapshot["contact_level"] = np.array(self.law.level_pressure, dtype=float)
-        snapshot.update(step=int(step), time=step * self.scheme.k, history=dict(self.history[-1]))
+        snapshot.update(step=int(step), time=step * self.scheme.dt, history=dict(self.history[-1]))
         return snapshot
 
     def restore(self, snapshot: dict) -> State:
@@ -239,20 +239,20 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             vectors[name].setArray(np.asarray(snapshot[name], dtype=float).ravel())
         step = int(snapshot["step"])
         if self.law is not None:
-            self.law.set_time(step * self.scheme.k)
+            self.law.set_time(step * self.scheme.dt)
             self.law.slip = np.array(snapshot["slip"], dtype=float)
             self.law.level_pressure = np.array(snapshot["contact_level"], dtype=float)
         return self.resume(State(**vectors), step, snapshot["history"])
 
     # -- the loop ------------------------------------------------------------------------
     def step(self, state: State, n: int) -> State:
-        """Advance from t_{n-1} to t_n = n k.
+        """Advance from t_{n-1} to t_n = n dt.
 
         The returned State reuses the vectors of the level before ``state``: the vectors
         of ``state`` itself are overwritten by the step after next, so keep a level only
         by copying it.
         """
-        t = n * self.scheme.k
+        t = n * self.scheme.dt
         new = self._next_level(state)
         ut, vt = self._ut, self._vt
         self.scheme.predict(state, ut, vt)
@@ -264,7 +264,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             self.disc.mass.mult(ut, self._work)
             b.axpy(self.scheme.mass_coefficient, self._work)
         if self.scheme.history is not None:  # generalized-alpha: the previous level's share
-            self._add_history(state, t - self.scheme.k, b)
+            self._add_history(state, t - self.scheme.dt, b)
         ut.copy(new.u)  # initial guess: the predictor
         if self.law is not None:
             self.law.gate(ut)  # where friction acts in this step (friction law)
@@ -310,25 +310,16 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self.disc.dirichlet.mult(state.u, work)
         force.axpy(self.scene.alpha_dirichlet, work)
         if self.law is not None:
-            self._add_level_contact_force(self.law, state.u, force)
+            # C(u_{n-1}), the force the last step balanced (ContactLaw.add_level_force); before
+            # the next gate its friction part alpha_T (u_tau - xi_{n-1}) is the last step's
+            self.law.add_level_force(force, *self.law.kinematics(state.u))
         b.axpy(-force_weight, force)
-
-    def _add_level_contact_force(self, law: ContactLaw, u: PETSc.Vec, out: PETSc.Vec) -> None:
-        """out += C(u): the contact and friction force the last step balanced at u = u_{n-1}.
-
-        The one place generalized-alpha evaluates the contact force of a level (the new
-        level's force is the step solver's); a time discretization of contact that changes
-        the force a step balances changes it here too.  Before the next gate, the friction
-        force alpha_T (u_tau - xi_{n-1}) is the last step's (the return mapping left it
-        inside the bound).  Collective.
-        """
-        law.add_level_force(out, *law.kinematics(u))
 
     def _contact_acceleration(self, new: State) -> None:
         """Close the step's contact force C_n (ContactLaw.end_level) and a_n with it.
 
         The energy of Newmark(beta, 1/2) that the discrete-gradient force conserves is
-        kinetic + elastic + penalty + k^2 (beta - 1/4)/2 a^T M a, with a_n the acceleration
+        kinetic + elastic + penalty + dt^2 (beta - 1/4)/2 a^T M a, with a_n the acceleration
         of the forces C_n the scheme used.  For beta = 1/4 (the trapezoidal rule) the last
         term vanishes, so a_n may hold the pressure at t_n instead, the physical
         acceleration: a_n += M^-1 B_nu^T w (C_n - p(u_n)), a mass solve only in steps in
@@ -337,7 +328,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         scene at beta = 1/2 then gains energy without bound).  Collective.
         """
         law = self.law
-        if law is None or not self.scheme.dynamic or law.contact_force == "endpoint":
+        if law is None or not self.scheme.dynamic or not law.normal_force.uses_start_level:
             return
         un = law.kinematics(new.u)[0]
         physical = self.scheme.trapezoidal

@@ -105,7 +105,7 @@ class StepChecks:
                 self._diverged(f"{what}{name}", n)
 
     def _diverged(self, what: str, n: int) -> None:
-        t = n * self.scheme.k
+        t = n * self.scheme.dt
         raise SolverError(
             f"{what} at step {n}, t = {t:.6g}: the time integration diverged "
             "(check the loads, time.dt, the Newmark parameters and the penalty factors)"

@@ -73,13 +73,11 @@ class ContactStepSolver:
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
         self.b = a_const.createVecRight()
         # work vectors of the line search, the residual check and the energy, allocated once
-        self._direction, self._product, self._trial, self._smooth, self._check = (
-            a_const.createVecRight() for _ in range(5)
+        self._direction, self._product, self._smooth, self._check = (
+            a_const.createVecRight() for _ in range(4)
         )
         self.factorizations = 0
         self.jacobian_builds = 0
-        self.line_search_log: list[tuple[float, float]] = []  # (J before, J after) per iteration
-        self.record_energy = False
         self.residual_norm = self.tolerance = float("nan")  # of the last step
         self._signature: np.ndarray | None = None  # active set the Jacobian was built for
         # active set of the iterate a Newton step started from (set before any step test)
@@ -163,34 +161,30 @@ class ContactStepSolver:
         y.copy(direction)
         direction.scale(-1.0)
         un, ut = self.law.kinematics(x)
-        dn, dt = self.law.kinematics(direction)
+        d_nu, d_tau = self.law.kinematics(direction)
         start_slope = self._smooth_residual(x, self._smooth).dot(direction)  # d^T (A x - b)
         curvature = None  # d^T A d, computed only for the scan
 
         def derivative(step):
-            value, slope = self.law.directional(un, ut, dn, dt, step)
+            value, slope = self.law.directional(un, ut, d_nu, d_tau, step)
             return start_slope + step * curvature + value, curvature + slope
 
-        value, _ = self.law.directional(un, ut, dn, dt, 0.0)
+        value, _ = self.law.directional(un, ut, d_nu, d_tau, 0.0)
         if start_slope + value >= 0.0:  # phi'(0)
             self._not_descent(x, start_slope + value)
             self._exact_piece = False
             y.scale(0.0)
             return True
         piece = self.law.piece(un, ut)
-        same_piece = np.all(piece >= 0) and np.array_equal(piece, self.law.piece(un + dn, ut + dt))
+        same_piece = np.all(piece >= 0) and np.array_equal(
+            piece, self.law.piece(un + d_nu, ut + d_tau)
+        )
         self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
-        before = self.energy(x) if self.record_energy else 0.0
         if not self._exact_piece:
             self.a_const.mult(direction, self._product)
             curvature = self._product.dot(direction)
             y.scale(_minimize_monotone(derivative, derivative(0.0)))
         self._step_norm = y.norm()
-        if self.record_energy:
-            trial = self._trial
-            x.copy(trial)
-            trial.axpy(-1.0, y)
-            self.line_search_log.append((before, self.energy(trial)))
         return not self._exact_piece
 
     def _not_descent(self, x: PETSc.Vec, slope: float) -> None:

@@ -12,7 +12,8 @@ for
   sparse LU and backtracking on |F| (no energy exists for the exact line search), to the
   same step tolerance.
 
-Scenes: the sliding block and the manufactured solution of tests/mechanics/test_coulomb.py, and a
+Scenes: the sliding block and the manufactured solution of parefg.scene.library (those of
+tests/mechanics/test_coulomb.py), and a
 sweep of the friction coefficient on the block (where the fixed point stops contracting).
 
     python scripts/bench/bench_coulomb.py [--csv coulomb.csv] [--quick]
@@ -21,7 +22,6 @@ sweep of the friction coefficient on the block (where the fixed point stops cont
 import argparse
 import csv
 import pathlib
-import sys
 import tempfile
 import time
 
@@ -30,15 +30,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from mpi4py import MPI
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "tests" / "mechanics"))
-
-from test_coulomb import MMS, SLIDE  # noqa: E402
-
-from parefg.discretization.operators import build_discretization  # noqa: E402
-from parefg.errors import SolverError  # noqa: E402
-from parefg.mechanics.contact import _scipy_from_petsc  # noqa: E402
-from parefg.scene.loader import load_scene  # noqa: E402
-from parefg.timestepping.simulation import Simulation  # noqa: E402
+from parefg.errors import SolverError
+from parefg.mechanics.contact_frame import _scipy_from_petsc
+from parefg.run import prepare
+from parefg.scene.library import COULOMB_MMS, COULOMB_SLIDE
+from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_SELF
 
@@ -98,8 +94,8 @@ class SemismoothNewton:
 
 
 def run(source: str, overrides: list[str], solver: str) -> dict:
-    scene = load_scene(source, overrides)
-    sim = Simulation(COMM, scene, build_discretization(COMM, scene))
+    sim = prepare(COMM, source, overrides)
+    scene = sim.scene
     if solver == "ssn":
         sim.solver = SemismoothNewton(sim)
     state, start, status = sim.start(), time.perf_counter(), "ok"
@@ -143,8 +139,8 @@ def main() -> None:
     args = parser.parse_args()
     directory = pathlib.Path(tempfile.mkdtemp(prefix="bench_coulomb_"))
     sources = {"mms": directory / "mms.toml", "slide": directory / "slide.toml"}
-    sources["mms"].write_text(MMS)
-    sources["slide"].write_text(SLIDE)
+    sources["mms"].write_text(COULOMB_MMS)
+    sources["slide"].write_text(COULOMB_SLIDE)
     table = []
     for label, key, overrides in cases(args.quick):
         for solver in ("fp", "ssn"):

@@ -20,8 +20,8 @@ import numpy as np
 from benchlib import parser, write_csv
 from mpi4py import MPI
 
-from parefg.discretization.operators import build_discretization
-from parefg.scene.loader import load_scene
+from parefg.run import prepare
+from parefg.scene.library import AT_REST, AT_REST_ON_OBSTACLE
 from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_WORLD
@@ -34,39 +34,15 @@ SCHEMES = {
     "gen-alpha 0.5": [GA, "time.rho_inf=0.5"],
     "gen-alpha 0": [GA, "time.rho_inf=0"],
 }
-AT_REST = """
-[domain]
-shape = "square"
-[discretization]
-h = 0.125
-degree = 2
-[time]
-T = 0.5
-dt = 0.05
-[boundary.top]
-type = "dirichlet"
-[boundary.bottom]
-type = "{bottom}"
-[boundary.left]
-type = "neumann"
-[boundary.right]
-type = "neumann"
-[exact]
-u = {exact}
-"""
-AT_REST_CASES = {
-    "clamped": ("neumann", '["0.1 * (1 + x) * exp(y)", "-0.1 * y * exp(x)"]'),
-    "on-obstacle": ("contact", '["0.02 * x", "-0.05 * y"]'),
-}
+AT_REST_CASES = {"clamped": AT_REST, "on-obstacle": AT_REST_ON_OBSTACLE}
 
 
 def run(source: str, overrides) -> tuple[Simulation, object, float]:
     """Run to T; return the simulation, the final state and max |a| over the run."""
-    scene = load_scene(source, list(overrides))
-    sim = Simulation(COMM, scene, build_discretization(COMM, scene))
+    sim = prepare(COMM, source, overrides)
     state = sim.start()
     largest = state.a.norm(3)
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, sim.scene.n_steps + 1):
         state = sim.step(state, n)
         largest = max(largest, state.a.norm(3))
     return sim, state, largest
@@ -74,9 +50,9 @@ def run(source: str, overrides) -> tuple[Simulation, object, float]:
 
 def at_rest_table(directory: str) -> list[dict]:
     rows = []
-    for case, (bottom, exact) in AT_REST_CASES.items():
+    for case, text in AT_REST_CASES.items():
         path = f"{directory}/at_rest_{case}.toml"
-        Path(path).write_text(AT_REST.format(bottom=bottom, exact=exact))
+        Path(path).write_text(text)
         for factor in (1e2, 1e4):
             penalty = f"penalty.alpha={factor / 0.125}"
             static, final, _ = run(path, ['time.scheme="static"', penalty])

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from petsc4py import PETSc
 
 from parefg.errors import InputError
 from parefg.run import prepare
@@ -39,6 +40,15 @@ def test_prepare_keeps_only_the_last_row_when_asked(comm):
 def test_prepare_refuses_bad_input_on_every_rank(comm):
     with pytest.raises(InputError, match="discretization.h"):
         prepare(comm, "square", ["discretization.h=-1"])
+
+
+def test_prepare_configures_the_solvers_with_the_scene_solver_table(comm):
+    """As in `parefg run`: the step's KSP reads [solver], which is gone afterwards."""
+    sim = prepare(comm, "square", [*TINY, "solver.ksp_type=cg", "solver.pc_type=jacobi"])
+    assert sim.solver.snes.getKSP().getType() == "cg"
+    assert not PETSc.Options().hasName("ksp_type")
+    with pytest.raises(InputError, match="bogus"):
+        prepare(comm, "square", [*TINY, "solver.ksp_type=bogus"])
 
 
 def test_run_cases_runs_the_grid_in_order_and_prints_nothing(comm, tmp_path, capsys):

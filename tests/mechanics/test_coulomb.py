@@ -1,6 +1,6 @@
 """Coulomb friction (g = mu_f p, SPEC 1): closed forms, a manufactured solution, ranks, input.
 
-Scenes (TOML below, written to a temporary directory):
+Scenes (TOML in parefg.scene.library, written to a temporary directory):
 
 * ``SLIDE``: an elastic 1 x 0.25 block (E = 1000, rho = 1) on the obstacle at y = 0,
   pressed by the body force f = (0, -G), thrown along it with v = (V0, 0), Coulomb
@@ -30,76 +30,18 @@ import numpy as np
 import pytest
 from conftest import run_parefg
 from mpi4py import MPI
+from petsc4py import PETSc
 
-from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError
 from parefg.mechanics.contact import OPEN, STICK
+from parefg.run import prepare
+from parefg.scene.library import COULOMB_MMS, COULOMB_SLIDE, SLIDE_G, SLIDE_MU, SLIDE_V0
 from parefg.scene.loader import load_scene
 from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_WORLD
-V0, MU, G = 0.5, 0.3, 1.0
+V0, MU, G = SLIDE_V0, SLIDE_MU, SLIDE_G
 T_STOP = V0 / (MU * G)  # 1.6667: between the steps 1.66 and 1.68
-
-SLIDE = f"""
-name = "slide"
-[domain]
-shape = "rectangle"
-size = [1.0, 0.25]
-[discretization]
-h = 0.125
-degree = 1
-[material]
-E = 1000.0
-nu = 0.3
-rho = 1.0
-[time]
-T = 2.2
-dt = 0.02
-beta = 0.36
-gamma = 0.7
-[penalty]
-alpha_contact = 1e4
-[boundary.bottom]
-type = "contact"
-friction_law = "coulomb"
-friction_coefficient = {MU}
-[initial]
-v = [{V0}, 0.0]
-[loads]
-f = [0.0, {-G}]
-"""
-# gamma = 0.7 damps the elastic ringing of the block once it stops (the shear it carried
-# while decelerating is released at once); alpha_contact = 10 E/h keeps the contact
-# pressure smooth along the MLS trace (1e4 E/h makes it oscillate, open patches included).
-
-MMS = """
-name = "coulomb_mms"
-[domain]
-shape = "square"
-[discretization]
-h = 0.125
-degree = 1
-[material]
-lam = 1.0
-mu = 1.0
-rho = 1.0
-[time]
-T = 1.0
-dt = 0.0125
-[boundary.bottom]
-type = "contact"
-friction_law = "coulomb"
-friction_coefficient = 0.3
-[boundary.top]
-type = "dirichlet"
-[boundary.left]
-type = "neumann"
-[boundary.right]
-type = "neumann"
-[exact]
-u = ["(1 - cos(t)) * ((1 + x) + y * (0.9 * exp(x) - 0.3))", "-(1 - cos(t)) * y * exp(x)"]
-"""
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +50,7 @@ def scenes(tmp_path_factory):
     directory = COMM.bcast(str(tmp_path_factory.mktemp("coulomb")) if COMM.rank == 0 else None)
     paths = {"slide": f"{directory}/slide.toml", "mms": f"{directory}/mms.toml"}
     if COMM.rank == 0:
-        for key, text in (("slide", SLIDE), ("mms", MMS)):
+        for key, text in (("slide", COULOMB_SLIDE), ("mms", COULOMB_MMS)):
             with open(paths[key], "w") as file:
                 file.write(text)
     COMM.barrier()
@@ -116,8 +58,7 @@ def scenes(tmp_path_factory):
 
 
 def simulation(source: str, overrides=()) -> Simulation:
-    scene = load_scene(source, list(overrides))
-    return Simulation(COMM, scene, build_discretization(COMM, scene))
+    return prepare(COMM, source, overrides)
 
 
 def mean_velocity(sim: Simulation, state) -> np.ndarray:
@@ -248,7 +189,7 @@ def test_coulomb_matches_given_friction_with_the_exact_bound(scenes):
     the exact solution (derived from [exact]) is the same continuous problem, so the two
     discrete solutions differ by the discretization error of the pressure only."""
     coulomb = coulomb_errors(scenes["mms"], [])
-    raw = MMS.replace('friction_law = "coulomb"', 'friction_law = "given"')
+    raw = COULOMB_MMS.replace('friction_law = "coulomb"', 'friction_law = "given"')
     raw = raw.replace("friction_coefficient = 0.3\n", "")
     path = scenes["mms"].replace("mms.toml", "mms_given.toml")
     if COMM.rank == 0:
@@ -299,6 +240,17 @@ def test_a_negative_friction_coefficient_on_the_command_line_exits_2(tmp_path, r
     assert "boundary.bottom.friction_coefficient" in lines[0] and ">= 0" in lines[0]
     assert "Traceback" not in result.stderr
     assert not out.exists()
+
+
+def test_an_outer_iteration_limit_below_one_is_refused(scenes):
+    """-coulomb_max_it 0 would leave the fixed point without a single solve."""
+    options = PETSc.Options()
+    options.setValue("coulomb_max_it", 0)
+    try:
+        with pytest.raises(InputError, match="-coulomb_max_it 0: must be at least 1"):
+            simulation(scenes["mms"])
+    finally:
+        options.delValue("coulomb_max_it")
 
 
 # -- 1 rank == 2 ranks ------------------------------------------------------------------------

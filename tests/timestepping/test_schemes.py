@@ -21,6 +21,8 @@ from conftest import run_parefg
 from mpi4py import MPI
 
 from parefg.discretization.operators import build_discretization
+from parefg.run import prepare
+from parefg.scene.library import AT_REST, AT_REST_ON_OBSTACLE
 from parefg.scene.loader import load_scene
 from parefg.scene.schema import SCHEMES as SCHEMA_SCHEMES
 from parefg.timestepping.schemes import SCHEMES, State, generalized_alpha_parameters
@@ -52,34 +54,6 @@ type = "neumann"
 u = ["(1 - cos(t)) * (1 + x) * exp(y)", "-(1 - cos(t)) * y * exp(x)"]
 """
 
-# A time-independent exact solution with u != 0: clamped at y = 1, tractions elsewhere.
-AT_REST = """
-[domain]
-shape = "square"
-[discretization]
-h = 0.125
-degree = 2
-[time]
-T = 0.5
-dt = 0.05
-[boundary.top]
-type = "dirichlet"
-[boundary.bottom]
-type = "neumann"
-[boundary.left]
-type = "neumann"
-[boundary.right]
-type = "neumann"
-[exact]
-u = ["0.1 * (1 + x) * exp(y)", "-0.1 * y * exp(x)"]
-"""
-
-# A time-independent compression resting on the obstacle at y = 0 (pressure 0.04, no
-# tangential traction), clamped at y = 1.
-AT_REST_ON_OBSTACLE = AT_REST.replace(
-    '[boundary.bottom]\ntype = "neumann"', '[boundary.bottom]\ntype = "contact"'
-).replace('["0.1 * (1 + x) * exp(y)", "-0.1 * y * exp(x)"]', '["0.02 * x", "-0.05 * y"]')
-
 # Free square clamped at y = 0, no loads: the modes of (K + alpha_D G_D, M).
 MODES = """
 [domain]
@@ -103,10 +77,9 @@ def scene_file(tmp_path, text: str, name: str) -> str:
 
 def run(source: str, overrides=()) -> tuple[Simulation, State]:
     """Run a scene to T in-process; return the simulation and the final state.  Collective."""
-    scene = load_scene(source, list(overrides))
-    sim = Simulation(COMM, scene, build_discretization(COMM, scene))
+    sim = prepare(COMM, source, overrides)
     state = sim.start()
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, sim.scene.n_steps + 1):
         state = sim.step(state, n)
     return sim, state
 

@@ -3,10 +3,10 @@
 The energy kinetic + elastic + penalty + dissipated - work of Newmark(beta, 1/2) with the
 step force C_n = 2 DG(d_{n-1}, d_n) - C_{n-1} satisfies exactly (frictionless)
 
-    E_n + k^2 (beta - 1/4)/2 a_n^T M a_n = E_{n-1} + k^2 (beta - 1/4)/2 a_{n-1}^T M a_{n-1},
+    E_n + dt^2 (beta - 1/4)/2 a_n^T M a_n = E_{n-1} + dt^2 (beta - 1/4)/2 a_{n-1}^T M a_{n-1},
 
 so at beta = 1/4 E is conserved to the solver tolerance, and at beta >= 1/4 it never
-exceeds E_0 + k^2 (beta - 1/4)/2 a_0^T M a_0 = E_0 (no loads: a_0 = 0).  The endpoint force
+exceeds E_0 + dt^2 (beta - 1/4)/2 a_0^T M a_0 = E_0 (no loads: a_0 = 0).  The endpoint force
 (the scheme before) gained 5.7x on the impact scene at beta = 1/4.
 """
 
@@ -89,7 +89,7 @@ def test_stiff_penalty_impact_conserves_energy_at_beta_quarter(alpha):
 def test_energy_never_grows_at_beta_half_with_friction():
     """beta = 1/2, stiff penalty, Tresca friction: E <= E_0, dissipation grows every step.
 
-    Bound: E_n <= E_0 + k^2/8 a_0^T M a_0 = E_0 (a_0 = 0); friction only removes energy.
+    Bound: E_n <= E_0 + dt^2/8 a_0^T M a_0 = E_0 (a_0 = 0); friction only removes energy.
     The bound leaves the friction gate's lag (parefg.mechanics.friction) 1e-3 of E_0.
     """
     sim, _, _ = run("impact", ["time.beta=0.5", "penalty.alpha_contact=1e7", "time.T=0.4"])

@@ -1,0 +1,90 @@
+"""This rank's Gamma_C quadrature points in their normal-tangential frame (SPEC 4).
+
+At each point q (weight w_q, outward normal nu_q, tangent tau_q = (-nu_2, nu_1)) the
+rotated value operator B = [B_nu; B_tau] maps the nodal parameters to
+u_nu = nu . u_h(x_q) and u_tau = tau . u_h(x_q), and B^T maps point forces back to the
+DOFs.  :class:`~parefg.mechanics.contact.ContactLaw` builds the penalty law on it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from petsc4py import PETSc
+
+from parefg.parallel import petsc_matrix
+
+
+class ContactFrame:
+    """Weights, normals, tangents and the rotated operator of the points.  Collective.
+
+    Parameters
+    ----------
+    comm
+        The run's communicator.
+    points
+        The discretization's Gamma_C points (``disc.contact``): ``weights`` (n_c,),
+        ``points`` and ``normals`` (n_c, 2), ``part`` (n_c,) and the value operator
+        ``values`` (scalar n_c x n_nodes PETSc).
+    """
+
+    def __init__(self, comm, points):
+        self.comm = comm
+        self.weights = points.weights  # (n_c,)
+        self.points = points.points  # (n_c, 2)
+        self.normals = points.normals  # (n_c, 2)
+        self.tangents = np.column_stack([-self.normals[:, 1], self.normals[:, 0]])  # (n_c, 2)
+        self.part = points.part
+        # kron(S, I_2) of the scalar value operator: rows 2q, 2q + 1 = (u_x, u_y)(x_q)
+        values = sp.kron(_scipy_from_petsc(points.values), sp.identity(2), format="csr")
+        local = (_rotated(self.normals, self.tangents) @ values).tocsr()
+        self.normal_op = local[0::2]  # (n_c, n_dofs) scipy, for the Jacobian
+        self.tangent_op = local[1::2]
+        self.operator = petsc_matrix(
+            comm, local, 2 * points.values.getLocalSize()[1], 2 * points.values.getSize()[1]
+        )
+        # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
+        self._point_vec = self.operator.createVecLeft()
+
+    def kinematics(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
+        """(u_nu, u_tau) at the points.  Collective."""
+        out = self._point_vec
+        self.operator.mult(u, out)
+        values = out.getArray().reshape(-1, 2)
+        return values[:, 0].copy(), values[:, 1].copy()
+
+    def point_vector(self, normal: np.ndarray) -> PETSc.Vec:
+        """The work vector at the points, holding (normal_q, 0) (overwritten by later calls)."""
+        out = self._point_vec
+        out.setArray(np.column_stack([normal, np.zeros_like(normal)]).ravel())
+        return out
+
+    def _add_point_forces(self, residual: PETSc.Vec, pressure, friction) -> None:
+        """residual += B_nu^T (w pressure) + B_tau^T (w friction).  Collective."""
+        point_forces = self._point_vec
+        point_forces.setArray(
+            np.column_stack([pressure, friction]).ravel() * np.repeat(self.weights, 2)
+        )
+        self.operator.multTransposeAdd(point_forces, residual, residual)
+
+
+def _rotated(normals: np.ndarray, tangents: np.ndarray) -> sp.csr_matrix:
+    """(2 n_c, 2 n_c) rotation: rows 2q = nu_q . (u_x, u_y)_q, 2q + 1 = tau_q . (u_x, u_y)_q."""
+    n_points = len(normals)
+    q = np.arange(n_points)
+    return sp.csr_matrix(
+        (
+            np.concatenate([normals[:, 0], normals[:, 1], tangents[:, 0], tangents[:, 1]]),
+            (
+                np.concatenate([2 * q, 2 * q, 2 * q + 1, 2 * q + 1]),
+                np.concatenate([2 * q, 2 * q + 1, 2 * q, 2 * q + 1]),
+            ),
+        ),
+        shape=(2 * n_points, 2 * n_points),
+    )
+
+
+def _scipy_from_petsc(matrix: PETSc.Mat) -> sp.csr_matrix:
+    """This rank's rows of a PETSc AIJ matrix as scipy CSR with global columns."""
+    indptr, indices, data = matrix.getValuesCSR()
+    return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, matrix.getSize()[1]))
