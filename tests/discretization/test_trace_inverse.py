@@ -79,8 +79,10 @@ def _smallest_eigenvalue(scale: float) -> float:
         points, part = disc.boundary[name], disc.dirichlet_parts[name]
         shape = mls.evaluate(points.points, gradients=True)
         beta = part.beta * scale / 1.01  # the bound 2 C_e n_c times scale
-        matrix, _, _ = local_operators(DIRICHLET_METHODS["nitsche"], shape, points.weights,
-                                       points.normals, beta, disc.n_nodes, scene.lam, scene.mu)  # fmt: skip
+        nitsche = DIRICHLET_METHODS["nitsche"]
+        matrix, _, _ = local_operators(
+            nitsche, shape, points.weights, points.normals, beta, disc.n_nodes, scene.lam, scene.mu
+        )
         total += matrix.toarray()
     return float(np.linalg.eigvalsh(total)[0])
 
