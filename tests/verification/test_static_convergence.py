@@ -82,7 +82,7 @@ DEFAULT_CASES = {
     ("z", 1): ((1 / 8, 1 / 16, 1 / 32), 2e-3),
     ("square", 2): ((1 / 8, 1 / 16), 2e-4),
     ("z", 2): ((1 / 8, 1 / 16), 3e-4),
-    ("square", 3): ((1 / 4, 1 / 8), 6e-5),
+    ("square", 3): ((1 / 8, 1 / 16), 7e-6),  # h = 1/4 is pre-asymptotic (L2 rate 5.8)
 }
 
 
@@ -90,7 +90,8 @@ DEFAULT_CASES = {
 def test_static_rates_at_the_defaults(comm, tmp_path, case):
     """Nitsche, default quadrature and support.  Measured (rates L2 / H1):
     square m = 1  2.5 / 1.5,  Z m = 1  2.1 / 1.4,  square m = 2  3.3 / 2.1,
-    Z m = 2  3.0 / 2.2,  square m = 3 (h = 1/4, 1/8) see MEASURED below."""
+    Z m = 2  3.0 / 2.2,  square m = 3  4.1 / 3.0.  The Z at m = 3 is not asserted: its
+    H1 error is quadrature-limited even at 12 x 12 points (README, accuracy section)."""
     shape, degree = case
     sizes, h1_bound = DEFAULT_CASES[case]
     scene_path = write_static_scene(tmp_path / f"static_{shape}.toml", shape)
