@@ -63,6 +63,20 @@ def value_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     return _point_rows(nodes, mask, phi, np.zeros(1, dtype=np.int64), 1, n_nodes)
 
 
+
+def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
+    """(4 n_points x 2 n_nodes) gradients: row 4q + 2c + d = d phi_I / d x_d on DOF 2I + c.
+
+    Only for the few boundary points of Nitsche's traction terms; the domain's gradients
+    are re-evaluated in blocks (:mod:`parefg.discretization.point_gradients`).
+    """
+    if shape.dphi is None:
+        raise ValueError("gradient_operator needs shape values evaluated with gradients")
+    order, nodes, mask = _sorted_neighbours(shape, n_nodes)
+    dphi = np.take_along_axis(shape.dphi, order[:, :, None], axis=1)  # (n_points, n_max, 2)
+    per_row = dphi.transpose(0, 2, 1)[:, [0, 1, 0, 1], :]  # (n_points, 4, n_max): d = 0, 1, 0, 1
+    return _point_rows(nodes, mask, per_row, np.array([0, 0, 1, 1]), 2, 2 * n_nodes)
+
 @dataclass
 class Coupling:
     """Which nodes share a point: the scalar CSR pattern of every Gram matrix of a point set.

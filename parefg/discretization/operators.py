@@ -2,7 +2,7 @@
 
 scene -> node cloud -> partition -> MLS at this rank's quadrature points -> PETSc
 operators.  Everything here is constant over the run (small deformation): mass M,
-stiffness K, the Dirichlet penalty matrix G_D, and the point operators that evaluate
+stiffness K, the Dirichlet operator D (penalty or Nitsche), and the point operators that evaluate
 u_h (and its gradient) at quadrature points, Gamma_C points and nodes.
 """
 
@@ -18,14 +18,16 @@ from petsc4py import PETSc
 from parefg.boundary import BoundaryKind
 from parefg.discretization.assembly import Coupling, interleaved, value_operator
 from parefg.discretization.budget import Budget, check_problem_size
+from parefg.discretization.dirichlet import DIRICHLET_METHODS, DirichletPart, local_operators
 from parefg.discretization.domain_assembly import assemble_domain
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients
 from parefg.discretization.quadrature import Quadrature, cell_quadrature, segment_quadrature
+from parefg.discretization.trace_inverse import nitsche_beta
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.geometry.partition import Partition, partition_cloud
-from parefg.parallel import owned_rows, raise_everywhere
+from parefg.parallel import owned_rows, petsc_matrix, raise_everywhere
 from parefg.profiling import phase
 
 
@@ -102,11 +104,12 @@ class Discretization:
     n_nodes: int
     mass: PETSc.Mat  # M = int rho phi_I phi_J
     stiffness: PETSc.Mat  # K = a(phi_J, phi_I)
-    dirichlet: PETSc.Mat  # G_D = int_{Gamma_D} phi_I phi_J (without alpha)
+    dirichlet: PETSc.Mat  # D of the Dirichlet methods (parefg.discretization.dirichlet)
     contact_pattern: sp.csr_matrix  # owned rows of the Gamma_C coupling pattern (zeros)
     domain: PointSet
     nodes: PointSet
     boundary: dict[str, PointSet] = field(default_factory=dict)  # by boundary-condition name
+    dirichlet_parts: dict[str, DirichletPart] = field(default_factory=dict)  # their load, beta
     contact: PointSet | None = None  # all Gamma_C points (every contact part)
     n_contact: int = 0  # Gamma_C points on all ranks (contact.rows range over 0..n_contact-1)
     timings: dict[str, float] = field(default_factory=dict)
@@ -185,7 +188,7 @@ class _Builder:
     def build(self) -> Discretization:
         comm, cloud, n = self.comm, self.cloud, self.n_nodes
         domain, mass, stiffness = self._domain()
-        boundary, contact, dirichlet_local, pattern_local = self._boundaries()
+        boundary, dirichlet_parts, contact, dirichlet_local, pattern_local = self._boundaries()
         nodes = self._node_points()
         with phase(self.timings, "assembly"):
             dirichlet = self._square(dirichlet_local)
@@ -204,6 +207,7 @@ class _Builder:
             domain=domain,
             nodes=nodes,
             boundary=boundary,
+            dirichlet_parts=dirichlet_parts,
             contact=contact,
             n_contact=self.n_contact,
             timings=self.timings,
@@ -331,9 +335,9 @@ class _Builder:
         return quadrature, rows
 
     def _boundaries(self):
-        """Point sets of every boundary condition; G_D and the Gamma_C coupling pattern."""
+        """Point sets of every boundary condition; D, its parts and the Gamma_C pattern."""
         scene, cloud, n = self.scene, self.cloud, self.n_nodes
-        boundary, contact_parts = {}, []
+        boundary, parts, contact_parts = {}, {}, []
         dirichlet_local = sp.csr_matrix((2 * n, 2 * n))
         for name, bc in scene.boundaries.items():
             part_id = cloud.part_names.index(name)
@@ -341,16 +345,14 @@ class _Builder:
                 contact_parts.append(part_id)
                 continue
             quadrature, _ = self._boundary_quadrature([part_id])
-            shape = self._shape(quadrature.points, gradients=False)
+            method = DIRICHLET_METHODS[bc.method] if bc.kind == BoundaryKind.DIRICHLET else None
+            consistent = method is not None and method.consistent
+            shape = self._shape(quadrature.points, gradients=consistent)
             with phase(self.timings, "assembly"):
                 boundary[name] = self._point_set(quadrature, shape)
-                if bc.kind == BoundaryKind.DIRICHLET:
-                    coupling = Coupling.of(shape, n, quadrature.cell)
-                    phi = shape.phi[:, :, None]
-                    gram = coupling.gram(phi, phi, quadrature.weights)
-                    dirichlet_local = dirichlet_local + coupling.interleaved(
-                        _mass_blocks(gram), diagonal_only=True
-                    )
+            if method is not None:
+                parts[name], local = self._dirichlet_part(method, bc, quadrature, shape)
+                dirichlet_local = dirichlet_local + local
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
             quadrature, rows = self._boundary_quadrature(contact_parts)
@@ -362,7 +364,52 @@ class _Builder:
                 contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows)
                 coupling = Coupling.of(shape, n, quadrature.cell)
                 pattern = coupling.interleaved(np.zeros((len(coupling.indices), 2, 2)))
-        return boundary, contact, dirichlet_local, pattern
+        return boundary, parts, contact, dirichlet_local, pattern
+
+    def _dirichlet_part(self, method, bc, quadrature: Quadrature, shape: ShapeValues):
+        """One Dirichlet part by ``method``, and its local contributions to D.
+
+        beta is alpha_D for the penalty, the part's safety times the coercivity bound of
+        each segment (:func:`~parefg.discretization.trace_inverse.nitsche_beta`) for Nitsche.
+        """
+        scene, n = self.scene, self.n_nodes
+        if method.consistent:
+            with phase(self.timings, "assembly"):  # the trace-inverse estimate
+                per_segment = bc.safety * nitsche_beta(
+                    self.mls,
+                    self.cloud,
+                    self._nitsche_segments(),
+                    np.unique(quadrature.cell),
+                    scene.quadrature,
+                    scene.lam,
+                    scene.mu,
+                )
+            beta = np.repeat(per_segment, scene.quadrature)  # points are grouped by segment
+        else:
+            beta = np.full(len(quadrature.weights), scene.alpha_dirichlet)
+        with phase(self.timings, "assembly"):
+            assert quadrature.normals is not None
+            local, load, traction = local_operators(
+                method, shape, quadrature.weights, quadrature.normals, beta, n, scene.lam, scene.mu
+            )
+            part = DirichletPart(
+                method=method.name,
+                weights=quadrature.weights,
+                beta=beta,
+                load=petsc_matrix(self.comm, load, self.n_dofs_local, 2 * n),
+                traction=None
+                if traction is None
+                else petsc_matrix(self.comm, traction, self.n_dofs_local, 2 * n),
+            )
+        return part, local
+
+    def _nitsche_segments(self) -> np.ndarray:
+        """Every segment (all ranks) of a Dirichlet part imposed by a consistent method."""
+        cloud, names = self.cloud, []
+        for name, bc in self.scene.boundaries.items():
+            if bc.kind == BoundaryKind.DIRICHLET and DIRICHLET_METHODS[bc.method].consistent:
+                names.append(cloud.part_names.index(name))
+        return np.flatnonzero(np.isin(cloud.segment_part, names))
 
     def _node_points(self) -> PointSet:
         """u_h and its gradient at this rank's own nodes (MLS does not interpolate)."""

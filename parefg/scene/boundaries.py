@@ -8,6 +8,11 @@ Read by :func:`parefg.scene.schema.validate`; the kinds are
 import copy
 
 from parefg.boundary import BoundaryKind
+from parefg.discretization.dirichlet import (
+    DEFAULT_DIRICHLET_METHOD,
+    DIRICHLET_METHODS,
+    NITSCHE_SAFETY,
+)
 from parefg.errors import InputError
 from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, FRICTION_LAWS, PRESSURE_LAWS
 from parefg.scene.table import Table, as_nonnegative, as_number, as_vector, key_name, one_of, show
@@ -38,11 +43,34 @@ def read_boundaries(where: str, raw, part_names: list[str], has_exact: bool) -> 
         kind = table.take("type", one_of(*BOUNDARY_KEYS))
         for key, convert, zero, derived in BOUNDARY_KEYS[kind]:
             table.take(key, convert, None if derived and has_exact else copy.deepcopy(zero))
+        if kind == BoundaryKind.DIRICHLET:
+            _read_dirichlet_method(table)
         if kind == BoundaryKind.CONTACT:
             _read_friction_law(table, has_exact)
             _read_friction_coefficient(table, given)
         boundaries[name] = table.finish()
     return boundaries
+
+
+def _read_dirichlet_method(table: Table) -> None:
+    """method: a name of DIRICHLET_METHODS (default "nitsche"); safety: Nitsche's only.
+
+    safety > 1 scales the coercivity bound of each segment into beta (default
+    NITSCHE_SAFETY); below 1 the Nitsche operator may be indefinite.  The penalty's
+    alpha_D is [penalty] alpha_dirichlet, so safety is refused with it (not ignored).
+    """
+    method = table.take("method", one_of(*DIRICHLET_METHODS), DEFAULT_DIRICHLET_METHOD)
+    if not DIRICHLET_METHODS[method].consistent:
+        if "safety" in table.raw:
+            raise table.fail(
+                "safety",
+                table.raw["safety"],
+                f'only used with method = "nitsche" (the {method}\'s parameter is '
+                "penalty.alpha_dirichlet)",
+            )
+        return
+    above_one = (lambda v: v > 1, "must be > 1 (the coercivity bound of Nitsche's method)")
+    table.take("safety", as_number, NITSCHE_SAFETY, above_one)
 
 
 def _read_friction_law(table: Table, has_exact: bool) -> None:

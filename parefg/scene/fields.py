@@ -33,7 +33,8 @@ class BoundaryCondition:
     ``friction_law`` names the contact part's law in parefg.mechanics.friction.FRICTION_LAWS.
     A Coulomb part (friction_law in PRESSURE_LAWS) has the coefficient mu_f
     ``friction_coefficient``, a zero ``friction`` field (its bound mu_f p is set by the
-    step), and ``friction_is_zero`` iff mu_f = 0.
+    step), and ``friction_is_zero`` iff mu_f = 0.  A Dirichlet part names its ``method``
+    (parefg.discretization.dirichlet.DIRICHLET_METHODS) and Nitsche's ``safety``.
     """
 
     name: str
@@ -45,6 +46,8 @@ class BoundaryCondition:
     friction_is_zero: bool = True
     friction_law: str = DEFAULT_FRICTION_LAW
     friction_coefficient: float = 0.0
+    method: str = "penalty"  # a Dirichlet part's method (DIRICHLET_METHODS)
+    safety: float = 0.0  # Nitsche's beta over the coercivity bound
 
 
 def scene_expression(where: str, key: str, value, args=("x", "y", "t")) -> sympy.Expr:
@@ -87,7 +90,13 @@ def _dirichlet(where: str, name: str, table: dict, manufactured, checks) -> Boun
     """ubar(x, y, t): given, or u of the exact solution."""
     prefix = f"boundary.{name}"
     value = vector_field(where, f"{prefix}.value", table.get("value"), manufactured, "value")
-    return BoundaryCondition(name, BoundaryKind.DIRICHLET, value=value)
+    return BoundaryCondition(
+        name,
+        BoundaryKind.DIRICHLET,
+        value=value,
+        method=table["method"],
+        safety=table.get("safety", 0.0),
+    )
 
 
 def _neumann(where: str, name: str, table: dict, manufactured, checks) -> BoundaryCondition:

@@ -88,8 +88,18 @@ OUTPUT_FRAMES = 50  # default time series: about this many output steps per run
 # dilation s per MLS degree m; measured: at m = 2, s = 3.2 cuts the H1 error at h = 1/32
 # five-fold against s = 2.6 (README, accuracy section)
 DEFAULT_SUPPORT = {1: 2.0, 2: 3.2, 3: 4.0}
-# Gauss points per cell direction: MLS shape functions are rational, so m >= 2 needs more
-DEFAULT_QUADRATURE = {1: 3, 2: 5, 3: 7}
+# Gauss points per cell direction by MLS degree m, on the structured grid of a box shape
+# and on the unstructured cells of the others (the Z's re-entrant corner).  MLS shape
+# functions are rational and their supports cut the cells, so Gauss rules converge
+# slowly; with Nitsche's consistent boundary terms the quadrature error is what remains.
+# Measured (static manufactured solution, h = 1/32, Nitsche; README, accuracy section):
+# square m = 1: H1 8.5e-4 with 3 or 4 points (the 3 x 3 rule suffices on the grid);
+# square m = 2: L2 1.3e-6 with 5 points, 5.1e-7 with 8; Z m = 1: H1 3.0e-3 (3 points),
+# 1.2e-3 (6); Z m = 2: H1 6.8e-4 (5), 1.4e-4 (8), 8.2e-5 (10); Z m = 3, h = 1/16: H1
+# 4.7e-4 (7), 1.7e-4 (9), 8.2e-5 (12); square m = 3, h = 1/16: H1 1.3e-5 (7), 4.8e-6 (9).
+DEFAULT_QUADRATURE = {1: 3, 2: 8, 3: 9}
+UNSTRUCTURED_QUADRATURE = {1: 6, 2: 10, 3: 12}
+MAX_QUADRATURE = 16
 STEP_TOLERANCE = 1e-9  # relative distance of T / dt from an integer
 MAX_STEPS = 10**9  # beyond this T / dt is a typo, and is no longer checked as an integer
 
@@ -137,12 +147,15 @@ def _read_domain(table: Table, source_dir: Path) -> list[str]:
     return domain_part_names(table.out)
 
 
-def _read_discretization(table: Table) -> None:
+def _read_discretization(table: Table, shape: str) -> None:
+    """h, m, weight, support and quadrature; the quadrature's default depends on ``shape``."""
     table.take("h", as_number, 0.1, POSITIVE)
     degree = table.take("degree", as_integer, 1, between(1, 3))
     table.take("weight", one_of(*WEIGHTS), DEFAULT_WEIGHT)
     table.take("support", as_number, DEFAULT_SUPPORT[degree], (lambda v: v > 1, "must be > 1"))
-    table.take("quadrature", as_integer, DEFAULT_QUADRATURE.get(degree, 5), between(1, 10))
+    structured = SHAPES[shape].box is not None
+    points = (DEFAULT_QUADRATURE if structured else UNSTRUCTURED_QUADRATURE)[degree]
+    table.take("quadrature", as_integer, points, between(1, MAX_QUADRATURE))
     table.take("cells", one_of(*CELL_TYPES), CELL_TYPES[0])
     # Absent stays absent (no jitter): the effective scene of an unjittered run is unchanged.
     table.take("jitter", as_number, None, between(0.0, MAX_JITTER))
@@ -317,7 +330,7 @@ def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, 
         return result
 
     part_names = section("domain", _read_domain, source_dir)
-    section("discretization", _read_discretization)
+    section("discretization", _read_discretization, params["domain"]["shape"])
     section("material", _read_material)
     section("time", _read_time)
     E = elastic_constants(params["material"])[0]

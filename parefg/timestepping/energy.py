@@ -110,27 +110,28 @@ class EnergyLedger:
         return 0.5 * mean.dot(du)
 
     def _dirichlet_terms(self, u: PETSc.Vec, t: float) -> tuple[float, float]:
-        """alpha_D/2 ||u_h - ubar||^2 on Gamma_D, and the work of the moving data ubar.
+        """The boundary energy int e(u_h, ubar) on Gamma_D, and the work of the moving data.
 
-        The anchor work over the step is -alpha_D int mean(u_h - ubar) . (ubar_n - ubar_{n-1}).
+        e is the Dirichlet method's (parefg.discretization.dirichlet; the penalty's
+        alpha_D/2 |u_h - ubar|^2); the anchor work over the step is
+        -int mean(f) . (ubar_n - ubar_{n-1}), f = -de/dubar, exact for the quadratic e.
         """
         energy, work = 0.0, 0.0
         previous = self._dirichlet_previous
         current = {}
         for name in self.dirichlet_names:
-            points = self.disc.boundary[name]
+            points, part = self.disc.boundary[name], self.disc.dirichlet_parts[name]
             ubar = self._dirichlet_value(name, t)
-            diff = points.evaluate(u) - ubar
-            energy += np.dot(points.weights, np.sum(diff**2, axis=1))
+            density, force = part.energy_and_force(points.evaluate(u), part.point_traction(u), ubar)
+            energy += np.dot(points.weights, density)
             # Without a previous level (start, resume) the work is not used: no ubar(t - dt),
             # which may lie outside the data's domain (t < 0).
-            old_ubar, old_diff = previous.get(name, (ubar, diff))
-            mean_force = 0.5 * (diff + old_diff)
+            old_ubar, old_force = previous.get(name, (ubar, force))
+            mean_force = 0.5 * (force + old_force)
             work -= np.dot(points.weights, np.sum(mean_force * (ubar - old_ubar), axis=1))
-            current[name] = (ubar, diff)
+            current[name] = (ubar, force)
         self._dirichlet_previous = current
-        alpha = self.scene.alpha_dirichlet
-        return 0.5 * alpha * self.comm.allreduce(energy), alpha * self.comm.allreduce(work)
+        return self.comm.allreduce(energy), self.comm.allreduce(work)
 
     def _quadratic(self, matrix: PETSc.Mat, x: PETSc.Vec) -> float:
         """x^T A x for a square DOF matrix A (mass, stiffness).  Collective."""

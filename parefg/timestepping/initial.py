@@ -72,7 +72,7 @@ class InitialState:
             )
 
     def initial_state(self, forces: PETSc.Vec) -> State:
-        """u_0, v_0 projected; a_0 from M a_0 = F_0 - (K + alpha_D G_D) u_0 - contact(u_0).
+        """u_0, v_0 projected; a_0 from M a_0 = F_0 + L^T w ubar(0) - (K + D) u_0 - contact(u_0).
 
         ``forces`` is F_0 = external_forces(0).  A dynamic scene with a Dirichlet part
         takes u_0 by the elliptic projection of u0 (:meth:`_elliptic_projection`), so that
@@ -90,7 +90,7 @@ class InitialState:
             self.disc.stiffness.mult(u, ku)
             rhs.axpy(-1.0, ku)
             self.disc.dirichlet.mult(u, ku)
-            rhs.axpy(-self.scene.alpha_dirichlet, ku)
+            rhs.axpy(-1.0, ku)
             if self.law is not None:
                 self.law.gate(u)
                 self.law.set_time(0.0)
@@ -111,8 +111,8 @@ class InitialState:
         """u (overwritten; the guess) = P u0, the elliptic projection of u0 for the penalty
         operator, contact included:
 
-            (K + alpha_D G_D) P u0 + C(P u0) = -int div sigma(u0) . phi
-                + int_{Gamma_N} sigma(u0) nu . phi + alpha_D int_{Gamma_D} u0 . phi,
+            (K + D) P u0 + C(P u0) = -int div sigma(u0) . phi
+                + int_{Gamma_N} sigma(u0) nu . phi + L^T w u0|_{Gamma_D},
 
         C the frictionless penalty contact force (friction carries no force at t = 0, where
         xi_0 = u_tau(0)).  For data compatible with u0 (p = sigma(u0) nu, ubar(0) = u0 on
@@ -127,7 +127,7 @@ class InitialState:
         """
         rhs = self._projection_rhs()
         owned = self.disc.owned
-        matrix = (owned["stiffness"] + self.scene.alpha_dirichlet * owned["dirichlet"]).tocsr()
+        matrix = (owned["stiffness"] + owned["dirichlet"]).tocsr()
         if self.law is not None:
             matrix = with_pattern(matrix, self.disc.contact_pattern)
         operator = petsc_matrix(self.comm, matrix, matrix.shape[0], self.disc.n_dofs, block_size=2)
@@ -169,8 +169,7 @@ class InitialState:
             boundary = disc.boundary[name]
             x, y = boundary.points.T
             trace = self.guard.evaluate(key, scene.initial_u, boundary.points, 0.0, x, y)
-            boundary.integrate(trace.T, part)
-            rhs.axpy(scene.alpha_dirichlet, part)
+            disc.dirichlet_parts[name].add_load(trace.T, rhs)
         self.guard.check()
         return rhs
 

@@ -82,12 +82,10 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self._dirichlet_previous: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def _a_const(self) -> PETSc.Mat:
-        """A_const = c_M M + K + alpha_D G_D, with the Gamma_C pattern reserved."""
+        """A_const = c_M M + K + D, with the Gamma_C pattern reserved (D: Dirichlet methods)."""
         owned = self.disc.owned
         matrix = (
-            self.scheme.mass_coefficient * owned["mass"]
-            + owned["stiffness"]
-            + self.scene.alpha_dirichlet * owned["dirichlet"]
+            self.scheme.mass_coefficient * owned["mass"] + owned["stiffness"] + owned["dirichlet"]
         )
         matrix = with_pattern(matrix.tocsr(), self.disc.contact_pattern)
         n_local = matrix.shape[0]
@@ -158,11 +156,9 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         return self.guard.evaluate(("boundary", name, "value"), field, points, t, x, y, t).T
 
     def _add_dirichlet_data(self, t: float, out: PETSc.Vec) -> None:
-        """out += alpha_D g_D(t), g_D = int_{Gamma_D} ubar(t) . phi_I."""
-        part = self._part
+        """out += L^T (w ubar(t)) of every Dirichlet part (penalty: alpha_D int ubar . phi_I)."""
         for name in self.dirichlet_names:
-            self.disc.boundary[name].integrate(self._dirichlet_value(name, t), part)
-            out.axpy(self.scene.alpha_dirichlet, part)
+            self.disc.dirichlet_parts[name].add_load(self._dirichlet_value(name, t), out)
 
     def start(self) -> State:
         """Initial state, and the t = 0 row of the per-step table."""
@@ -293,7 +289,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
     def _add_history(self, state: State, t_old: float, b: PETSc.Vec) -> None:
         """b -= w_a M a_{n-1} + w_r r_{n-1}, with (w_a, w_r) = scheme.history.  Collective.
 
-        r_{n-1} = (K + alpha_D G_D) u_{n-1} - F_{n-1} - alpha_D g_D(t_{n-1}) + C(u_{n-1}):
+        r_{n-1} = (K + D) u_{n-1} - F_{n-1} - L^T w ubar(t_{n-1}) + C(u_{n-1}):
         the forces of the previous level (F_{n-1} is the step's ``_last_forces``).  Call
         before the step's ``law.gate`` / ``law.set_time``: C(u_{n-1}) is the force the last
         step ended with.
@@ -308,7 +304,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self.disc.stiffness.mult(state.u, work)
         force.axpy(1.0, work)
         self.disc.dirichlet.mult(state.u, work)
-        force.axpy(self.scene.alpha_dirichlet, work)
+        force.axpy(1.0, work)
         if self.law is not None:
             # C(u_{n-1}), the force the last step balanced (ContactLaw.add_level_force); before
             # the next gate its friction part alpha_T (u_tau - xi_{n-1}) is the last step's

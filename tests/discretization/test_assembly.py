@@ -2,7 +2,7 @@
 
 The reference below is the previous implementation, kept verbatim in spirit: scalar
 point-to-node matrices from COO, Gram matrices as sparse products S^T W S, stiffness
-blocks combined with Kronecker products.  The assembled M, K, G_D (owned rows) and the
+blocks combined with Kronecker products.  The assembled M, K, D (owned rows) and the
 point operators must equal it to 1e-13 relative to the largest entry, serially and
 under mpirun (the reference sums every rank's dense contribution with an allreduce).
 """
@@ -141,16 +141,52 @@ def test_stiffness_pattern_is_the_pairs_sharing_a_point(case):
     np.testing.assert_array_equal(stored.toarray() > 0, expected)
 
 
+def reference_nitsche(shape, points, beta, n_nodes, lam, mu):
+    """D = int beta phi_I phi_J - C - C^T, C[2I+a, 2J+b] = int phi_I (sigma(phi_J e_b) n)_a.
+
+    (sigma(phi_J e_b) n)_a = lam n_a d_b phi_J + mu (delta_ab d_n phi_J + n_b d_a phi_J), so
+    C = lam S_ab + mu S_ba + mu delta_ab (S_00 + S_11) with S_ab = int phi_I n_a d_b phi_J.
+    """
+    phi = reference_scalar(shape, n_nodes)
+    grads = [reference_scalar(shape, n_nodes, d) for d in range(2)]
+    weights, normals = points.weights, points.normals
+    s = [
+        [reference_gram(phi, weights * normals[:, a], grads[b]) for b in range(2)] for a in range(2)
+    ]
+    trace = s[0][0] + s[1][1]
+    cross = sp.csr_matrix((2 * n_nodes,) * 2)
+    for a in range(2):
+        for b in range(2):
+            block = lam * s[a][b] + mu * s[b][a] + (mu * trace if a == b else 0)
+            unit = sp.csr_matrix(([1.0], ([a], [b])), shape=(2, 2))
+            cross = cross + sp.kron(block, unit, format="csr")
+    return reference_interleave(reference_gram(phi, weights * beta, phi)) - cross - cross.T
+
+
 def test_dirichlet_and_contact_pattern_equal_reference(case):
+    """D of the default (Nitsche) and of the penalty (alpha_D G_D) equal the reference."""
     scene, disc, mls = case
     n = disc.n_nodes
     dirichlet = sp.csr_matrix((2 * n, 2 * n))
     for name, bc in scene.boundaries.items():
         if bc.kind == "dirichlet":
-            points = disc.boundary[name]
-            phi = reference_scalar(mls.evaluate(points.points, gradients=False), n)
-            dirichlet = dirichlet + reference_interleave(reference_gram(phi, points.weights, phi))
+            assert bc.method == "nitsche"
+            points, beta = disc.boundary[name], disc.dirichlet_parts[name].beta
+            shape = mls.evaluate(points.points, gradients=True)
+            dirichlet += reference_nitsche(shape, points, beta, n, scene.lam, scene.mu)
     assert_equal_matrices(disc.owned["dirichlet"].toarray(), owned_dense(disc, dirichlet))
+    assert_equal_matrices(petsc_local_rows(disc.dirichlet), owned_dense(disc, dirichlet))
+
+    penalty_scene = load_scene(
+        "square", [f"discretization.degree={scene.degree}", "discretization.h=0.0625",
+                   "boundary.top.method=penalty"]
+    )  # fmt: skip
+    penalty = build_discretization(MPI.COMM_WORLD, penalty_scene)
+    points = penalty.boundary["top"]
+    phi = reference_scalar(mls.evaluate(points.points, gradients=False), n)
+    gram = reference_interleave(reference_gram(phi, points.weights, phi))
+    reference = owned_dense(penalty, penalty_scene.alpha_dirichlet * gram)
+    assert_equal_matrices(penalty.owned["dirichlet"].toarray(), reference)
 
     phi = reference_scalar(mls.evaluate(disc.contact.points, gradients=False), n)
     phi.data[:] = 1.0

@@ -24,6 +24,8 @@ CASES = {
     ),
     # Newmark on the Z, contact on its bottom edge.
     "z-dynamic": ("z", ["time.dt=0.1"]),
+    # The paper's penalty on the clamped top instead of the default Nitsche.
+    "square-penalty": ("square", ["time.dt=0.1", "boundary.top.method=penalty"]),
 }
 
 

@@ -77,7 +77,7 @@ def test_effective_params_contain_defaults(square):
         "degree": 2,
         "weight": "cubic",
         "support": 3.2,
-        "quadrature": 5,
+        "quadrature": 8,  # DEFAULT_QUADRATURE[2] on the square's grid
         "cells": "quad",
     }
     assert params["penalty"] == dict.fromkeys(
@@ -87,6 +87,7 @@ def test_effective_params_contain_defaults(square):
     assert params["output"] == {"every": 1, "fields": ["u", "v", "a", "von_mises", "contact"]}
     # friction derived from [exact]: the paper's given friction by default
     assert params["boundary"]["bottom"] == {"type": "contact", "gap": 0, "friction_law": "given"}
+    assert params["boundary"]["top"] == {"type": "dirichlet", "method": "nitsche", "safety": 2.0}
     assert json.loads(json.dumps(params)) == params
 
 
@@ -347,7 +348,10 @@ BAD_OVERRIDES = [
     (["discretization.degree=2.0"], "discretization.degree = 2.0: must be an integer"),
     (["discretization.weight=box"], "discretization.weight = 'box'"),
     (["discretization.support=1"], "discretization.support = 1: must be > 1"),
-    (["discretization.quadrature=11"], "discretization.quadrature = 11"),
+    (["discretization.quadrature=17"], "discretization.quadrature = 17: must be in 1..16"),
+    (["boundary.top.method=lagrange"], "boundary.top.method = 'lagrange'"),
+    (["boundary.top.safety=1"], "boundary.top.safety = 1: must be > 1"),
+    (["boundary.top.method=penalty", "boundary.top.safety=3"], 'only used with method = "nitsche"'),
     (["penalty.alpha=-5"], "penalty.alpha = -5: must be > 0"),
     (["loads.f=[0, 'x.__class__']"], "loads.f[1]: 'x.__class__' is not allowed"),
     (["loads.f=[0]"], "loads.f = [0]: must be a list of two"),
@@ -408,7 +412,7 @@ BAD_OVERRIDES = [
         ["discretization.degree=100000000000000000000000000000000"],
         "discretization.degree = 100000000000000000000000000000000: must be in 1..3",
     ),
-    (["discretization.quadrature=-10000000000000000000000"], "must be in 1..10"),
+    (["discretization.quadrature=-10000000000000000000000"], "must be in 1..16"),
     (["discretization.seed=18446744073709551616"], "must be in 0..2**63 - 1"),
     (["loads.f=['exp(1000)', 0]"], "loads.f[0]: 'exp(1000)' is not allowed"),
     (["discretization.h"], "--set 'discretization.h': expected section.key=value"),

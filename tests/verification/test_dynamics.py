@@ -40,19 +40,23 @@ def errors(scene_name: str, overrides) -> dict[str, float]:
 
 @pytest.mark.parametrize("scene_name", ["square", "z"])
 def test_rates_in_h_for_degree_one(scene_name):
-    """m = 1, dt = 0.0125 (time error ~1e-5, below the space error): H1 >= 0.9, L2 >= 1.8.
+    """m = 1, dt = 0.0125 (time error ~1e-5, below the space error), h = 1/8, 1/16:
+    H1 in [0.8, 1.6], L2 in [1.65, 2.7] (m and m + 1, two-sided).
 
-    Measured (square): H1 0.066, 0.018, 0.0050 (rate 1.86); L2 6.7e-3, 1.0e-3, 1.6e-4 (2.7).
+    Measured at the defaults (Nitsche): L2 rate 2.09 (square and Z), H1 1.47 (square),
+    1.45 (Z); L2 7.2e-5 and 7.4e-5, H1 2.5e-3 and 3.1e-3 at h = 1/16.  h = 1/4 is left out: on
+    the Z it is pre-asymptotic (L2 7.8e-4, 3.1e-4, 7.4e-5 at h = 1/4, 1/8, 1/16); the
+    penalty's larger coarse-grid error had raised the fit over it to the bound.
     """
-    sizes = [0.25, 0.125, 0.0625]
+    sizes = [0.125, 0.0625]
     runs = [
         errors(scene_name, ["discretization.degree=1", f"discretization.h={h}", "time.dt=0.0125"])
         for h in sizes
     ]
     h1 = [e["h1_rel"] for e in runs]
     l2 = [e["l2_rel"] for e in runs]
-    assert fitted_rate(sizes, h1) >= 0.9, h1
-    assert fitted_rate(sizes, l2) >= 1.8, l2
+    assert 0.8 <= fitted_rate(sizes, h1) <= 1.6, h1
+    assert 1.65 <= fitted_rate(sizes, l2) <= 2.7, l2
     assert h1[-1] < 0.01 and l2[-1] < 1e-3  # converging to the right solution, not just fast
 
 

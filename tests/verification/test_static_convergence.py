@@ -6,12 +6,16 @@ Exact solution (smooth, not in the MLS basis of any degree)::
 
 solved as one static load step (time.scheme = "static", T = dt = 1); the body force,
 the Dirichlet data and the tractions are derived from [exact] by the scene loader.
-No contact.  The relative L2 and H1-seminorm errors at h = 1/8, 1/16, 1/32 are fitted
-with ``parefg.sweep.fitted_rate`` (``np.polyfit(log h, log e, 1)``) and the slopes asserted
-against the rates of the paper's estimate (m + 1 in L2, m in H1) with a margin:
-m = 1: L2 >= 1.8, H1 >= 0.9;  m = 2: L2 >= 2.6, H1 >= 1.7.
+No contact.  The relative L2 and H1-seminorm errors are fitted with
+``parefg.sweep.fitted_rate`` (``np.polyfit(log h, log e, 1)``) and the slopes asserted
+two-sided against the rates of the paper's estimate, m + 1 in L2 and m in H1: a rate
+below the window is a defect (a boundary term, the quadrature), one above it a
+pre-asymptotic fit that would hide one.
 
-Collective: every rank loads the scene, builds and solves; the errors are global.
+At the defaults (Nitsche on the Dirichlet parts, the quadrature of
+parefg.scene.schema.DEFAULT_QUADRATURE / UNSTRUCTURED_QUADRATURE) on two coarse grids;
+the paper's penalty with its default alpha = 1e4 E/h at m = 1, where it is not the
+limiting error.  Collective: every rank loads the scene, builds and solves.
 """
 
 import pytest
@@ -27,10 +31,11 @@ BOUNDARIES = {
     "z": {"top": "dirichlet", "bottom": "dirichlet", "sides": "neumann"},
 }
 
-H_VALUES = (1 / 8, 1 / 16, 1 / 32)
 
-# MLS degree m -> (minimum L2 rate, minimum H1 rate)
-REQUIRED_RATES = {1: (1.8, 0.9), 2: (2.6, 1.7)}
+def rate_windows(degree: int, above: float = 0.0) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """(L2 window, H1 window) of the fitted rates around m + 1 and m (``above``: more room
+    above, for a penalty error that shrinks with alpha ~ 1 / h and so inflates the fit)."""
+    return (degree + 1 - 0.35, degree + 1 + 0.7 + above), (degree - 0.2, degree + 0.6 + above)
 
 
 def write_static_scene(path, shape: str) -> str:
@@ -57,57 +62,65 @@ def static_errors(comm, scene_path: str, overrides: list[str]) -> dict[str, floa
     return simulation.errors(state.u, scene.T)
 
 
-def fitted_rates(comm, scene_path: str, overrides_of_h) -> tuple[float, float, list]:
-    """Slopes of log e_L2 and log e_H1 against log h over H_VALUES.  Collective."""
-    errors = [static_errors(comm, scene_path, overrides_of_h(h)) for h in H_VALUES]
-    l2_rate = fitted_rate(H_VALUES, [e["l2_rel"] for e in errors])
-    h1_rate = fitted_rate(H_VALUES, [e["h1_rel"] for e in errors])
+def fitted_rates(comm, scene_path: str, sizes, overrides_of_h) -> tuple[float, float, list]:
+    """Slopes of log e_L2 and log e_H1 against log h over ``sizes``.  Collective."""
+    errors = [static_errors(comm, scene_path, overrides_of_h(h)) for h in sizes]
+    l2_rate = fitted_rate(sizes, [e["l2_rel"] for e in errors])
+    h1_rate = fitted_rate(sizes, [e["h1_rel"] for e in errors])
     return l2_rate, h1_rate, errors
 
 
-@pytest.mark.parametrize("shape", ["square", "z"])
-def test_static_rates_degree_1(comm, tmp_path, shape):
-    """m = 1 with the defaults: alpha = 1e4 E/h, support 2.0, 3 x 3 Gauss points per cell.
+def assert_rates(windows, l2_rate, h1_rate, errors):
+    (l2_low, l2_high), (h1_low, h1_high) = windows
+    assert l2_low <= l2_rate <= l2_high, (l2_rate, errors)
+    assert h1_low <= h1_rate <= h1_high, (h1_rate, errors)
 
-    At these h the Dirichlet penalty is not the limiting error (measured: L2 rates 2.8
-    on the square and 2.4 on the Z, H1 1.9 and 1.4).
-    """
+
+# (shape, m) -> the grids, and the H1 error the finest must reach (measured, x 1.5)
+DEFAULT_CASES = {
+    ("square", 1): ((1 / 8, 1 / 16, 1 / 32), 1.5e-3),
+    ("z", 1): ((1 / 8, 1 / 16, 1 / 32), 2e-3),
+    ("square", 2): ((1 / 8, 1 / 16), 2e-4),
+    ("z", 2): ((1 / 8, 1 / 16), 3e-4),
+    ("square", 3): ((1 / 8, 1 / 16), 7e-6),  # h = 1/4 is pre-asymptotic (L2 rate 5.8)
+}
+
+
+@pytest.mark.parametrize("case", DEFAULT_CASES, ids=[f"{s}-m{m}" for s, m in DEFAULT_CASES])
+def test_static_rates_at_the_defaults(comm, tmp_path, case):
+    """Nitsche, default quadrature and support.  Measured (rates L2 / H1):
+    square m = 1  2.5 / 1.5,  Z m = 1  2.1 / 1.4,  square m = 2  3.3 / 2.1,
+    Z m = 2  3.0 / 2.2,  square m = 3  4.1 / 3.0.  The Z at m = 3 is not asserted: its
+    H1 error is quadrature-limited even at 12 x 12 points (README, accuracy section)."""
+    shape, degree = case
+    sizes, h1_bound = DEFAULT_CASES[case]
     scene_path = write_static_scene(tmp_path / f"static_{shape}.toml", shape)
 
     def overrides(h):
-        return [f"discretization.h={h}", "discretization.degree=1"]
+        return [f"discretization.h={h}", f"discretization.degree={degree}"]
 
-    l2_rate, h1_rate, errors = fitted_rates(comm, scene_path, overrides)
-    l2_min, h1_min = REQUIRED_RATES[1]
-    assert l2_rate >= l2_min, (l2_rate, errors)
-    assert h1_rate >= h1_min, (h1_rate, errors)
+    l2_rate, h1_rate, errors = fitted_rates(comm, scene_path, sizes, overrides)
+    assert_rates(rate_windows(degree), l2_rate, h1_rate, errors)
+    assert errors[-1]["h1_rel"] < h1_bound
+
+
+@pytest.mark.parametrize("shape", ["square", "z"])
+def test_static_rates_of_the_penalty_at_degree_1(comm, tmp_path, shape):
+    """The paper's penalty, alpha = 1e4 E/h, m = 1, h = 1/8 .. 1/32, the old 3 x 3 rule.
+
+    At m = 1 the penalty converges at the MLS rates (measured: L2 rates 2.85 on the square
+    and 2.39 on the Z, H1 1.87 and 1.45), its own error, ~1 / alpha, shrinking with h and
+    raising the fit (0.5 more room above); at m >= 2 it limits the error (README,
+    accuracy: the L2 error stalls at ~5e-6 on the square at m = 2, rate 1.1 at m = 3).
+    """
+    scene_path = write_static_scene(tmp_path / f"static_{shape}.toml", shape)
+    dirichlet = [name for name, kind in BOUNDARIES[shape].items() if kind == "dirichlet"]
+
+    def overrides(h):
+        methods = [f"boundary.{name}.method=penalty" for name in dirichlet]
+        return [f"discretization.h={h}", "discretization.degree=1", "discretization.quadrature=3",
+                *methods]  # fmt: skip
+
+    l2_rate, h1_rate, errors = fitted_rates(comm, scene_path, (1 / 8, 1 / 16, 1 / 32), overrides)
+    assert_rates(rate_windows(1, above=0.5), l2_rate, h1_rate, errors)
     assert errors[-1]["h1_rel"] < 5e-3
-
-
-@pytest.mark.parametrize("shape", ["square", "z"])
-def test_static_rates_degree_2(comm, tmp_path, shape):
-    """m = 2 with alpha = 1e4 E/h^2 and 8 x 8 Gauss points per cell (support 3.2).
-
-    Why not the defaults, measured on the square and the Z: with alpha = 1e4 E/h the L2
-    error flattens at ~5e-6 from h = 1/16 to 1/32 (fitted L2 rate 2.4 on the square)
-    whatever the quadrature, a Dirichlet-penalty floor that larger alpha lowers; so alpha
-    grows like h^-2 here.  (A fixed huge alpha over-constrains the coarse MLS trace and
-    inflates the fitted rates; 1e4 E/h^2 gives rates near the theoretical 3 and 2.)  On
-    the Z the default 5 x 5 rule limits the H1 error (rate 1.5); 8 x 8 removes that
-    (measured: square L2 3.25, H1 2.38; Z L2 2.84, H1 2.03).
-    """
-    scene_path = write_static_scene(tmp_path / f"static_{shape}.toml", shape)
-
-    def overrides(h):
-        return [
-            f"discretization.h={h}",
-            "discretization.degree=2",
-            "discretization.quadrature=8",
-            f"penalty.alpha={1e4 / h**2}",
-        ]
-
-    l2_rate, h1_rate, errors = fitted_rates(comm, scene_path, overrides)
-    l2_min, h1_min = REQUIRED_RATES[2]
-    assert l2_rate >= l2_min, (l2_rate, errors)
-    assert h1_rate >= h1_min, (h1_rate, errors)
-    assert errors[-1]["h1_rel"] < 1e-3
