@@ -29,11 +29,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
-from parefg.discretization.assembly import gradient_operator, value_operator
-from parefg.discretization.mls import ShapeValues
-
-if TYPE_CHECKING:  # the scene schema reads the registry without loading PETSc
+if TYPE_CHECKING:  # the scene schema reads the registry without loading PETSc or numba
     from petsc4py import PETSc
+
+    from parefg.discretization.mls import ShapeValues
 
 
 @dataclass
@@ -81,6 +80,8 @@ def traction_operator(shape: ShapeValues, normals: np.ndarray, n_nodes, lam, mu)
 
     With G[q, i, j] = d u_i / d x_j: (sigma n)_i = lam tr(G) n_i + mu (G_ij + G_ji) n_j.
     """
+    from parefg.discretization.assembly import gradient_operator  # numba: not at import
+
     gradients = gradient_operator(shape, n_nodes)  # rows 4q + 2i + j
     n_points = len(normals)
     nx, ny = normals[:, 0], normals[:, 1]
@@ -129,6 +130,8 @@ def local_operators(
     D = V^T W_beta V - V^T W T - T^T W V with V the values and T the tractions at the
     points (T = 0 for the penalty), W the quadrature weights.
     """
+    from parefg.discretization.assembly import value_operator  # numba: not at import
+
     # kron(S, I_2) of the scalar values: row 2q + c, column 2I + c = phi_I(x_q)
     values = sp.kron(value_operator(shape, n_nodes), sp.identity(2), format="csr")
     weight_rows = np.repeat(weights, 2)
