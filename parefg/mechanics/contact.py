@@ -221,9 +221,20 @@ class ContactLaw(ContactFrame):
             return np.ones(len(ut), dtype=bool)
         return np.abs(self.alpha_t * (ut - self.slip)) >= self.bound
 
+    def _jacobian_closed(self, un) -> np.ndarray:
+        """Closed for the Jacobian: u_nu >= s, the kink u_nu = s on the closed piece.
+
+        Both pieces give the force 0 at the kink and the closed one, alpha_C (u_nu - s),
+        is exact there, so either slope is a valid Newton derivative; the open one left
+        a static scene that starts at u = 0 on the obstacle (s = 0) with J = K + friction,
+        singular in the normal motions, whose LU pivots of round-off size made the first
+        Newton direction (a descent one or not) depend on the CPU.
+        """
+        return un >= self.gap
+
     def active_set(self, un, ut) -> np.ndarray:
         """Packed (closed, stick) flags: the data the semismooth Jacobian depends on."""
-        return np.concatenate([un > self.gap, ~self._sliding(ut)])
+        return np.concatenate([self._jacobian_closed(un), ~self._sliding(ut)])
 
     def piece(self, un, ut) -> np.ndarray:
         """Which linear piece of the residual each point is on (int8 code per point).
@@ -233,7 +244,7 @@ class ContactLaw(ContactFrame):
         A negative code marks a point whose normal force is not affine in u (the discrete
         gradient of a step that crosses the obstacle there): no piece shortcut applies.
         """
-        code = (un > self.gap).astype(np.int8)
+        code = self._jacobian_closed(un).astype(np.int8)
         if self.has_friction:
             z = self.alpha_t * (ut - self.slip)
             friction_state = np.where(z >= self.bound, 1, np.where(z <= -self.bound, 2, 0))

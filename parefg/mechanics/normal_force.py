@@ -55,7 +55,9 @@ class EndpointForce(NormalForce):
 
     @staticmethod
     def slope(d0: np.ndarray, d1: np.ndarray, alpha: float) -> np.ndarray:
-        return alpha * (d1 > 0.0)
+        # the kink d1 = 0 counts as closed, as ContactLaw._jacobian_closed (both slopes are
+        # valid there; the open one left a body starting on the obstacle with a singular J)
+        return alpha * (d1 >= 0.0)
 
     @staticmethod
     def potential(d0: np.ndarray, d1: np.ndarray, alpha: float, level: np.ndarray) -> np.ndarray:

@@ -10,6 +10,8 @@ exceeds E_0 + dt^2 (beta - 1/4)/2 a_0^T M a_0 = E_0 (no loads: a_0 = 0).  The en
 (the scheme before) gained 5.7x on the impact scene at beta = 1/4.
 """
 
+import pathlib
+
 import h5py
 import numpy as np
 import pytest
@@ -100,15 +102,26 @@ def test_energy_never_grows_at_beta_half_with_friction():
 
 
 def test_generalized_alpha_impact_stays_in_the_energy_band():
-    """Generalized-alpha (rho_inf = 0.8), stiff penalty: E stays within [0.95, 1.02] E_0.
+    """Generalized-alpha (rho_inf = 0.8), stiff penalty: E / E_0 in a band for any rounding.
 
     Its balance averages the level forces with weight alpha_f, not 1/2, so the discrete
-    gradient is not exact for it; measured max E / E_0 = 1.009 over alpha 1e5 .. 1e9 (the
-    endpoint force: 3.5x .. 6.5x at T = 1.5).
+    gradient is not exact for it, and its damping of the unresolved contact modes takes
+    energy at every touch-down.  Touch-down and the first rebound (t <= 0.2) are
+    reproducible: initial velocities perturbed by 1e-15 .. 1e-13 relative, and 2 ranks,
+    agree there to 1e-12 (min E / E_0 = 0.98184 in all).  The corners then rattle on the
+    floor (1 to 5 closed points per step up to t = 0.95) and the trajectory is chaotic:
+    a 1e-15 perturbation grows smoothly 1e3-fold per 0.1 s (active sets and Newton counts
+    first differ at t = 0.47, at 1e-6 apart: no round-off decision), and the run's min
+    E / E_0 spreads over 0.9459 .. 0.9597 (14 1-rank and 3 2-rank runs: mean 0.954, std
+    0.004; this CPU's unperturbed 1-rank run gives 0.9496, an AVX-512 one gave >= 0.95).
+    The band for the whole run is mean - 5 std .. a dissipation of at least 1 %; the max,
+    1.0091 in every run, is reached before the rattling (scripts/verify/impact_energy_spread.py).
     """
     sim, _, _ = run("impact", ["time.scheme=generalized-alpha", "penalty.alpha_contact=1e7"])
     energy = balance(sim.history) / balance(sim.history)[0]
-    assert 0.95 <= energy.min() and energy.max() <= 1.02, (energy.min(), energy.max())
+    first_rebound = energy[: round(0.2 / sim.scene.dt) + 1]
+    assert 0.98 <= first_rebound.min(), first_rebound.min()
+    assert 0.93 <= energy.min() <= 0.99 and energy.max() <= 1.02, (energy.min(), energy.max())
 
 
 def test_bar_rebounds_at_the_physical_velocity_after_2l_over_c():
@@ -149,7 +162,8 @@ def test_restart_within_an_impact_at_beta_half_matches(tmp_path):
     for n in range(1, split + 1):
         state = sim.step(state, n)
     assert sim.history[-1]["active_contact_points"] > 0
-    path = tmp_path / "checkpoint.h5"
+    # one file for all ranks: each rank writes its own block into it (parallel HDF5)
+    path = pathlib.Path(comm.bcast(str(tmp_path), root=0)) / "checkpoint.h5"
     write_checkpoint(comm, path, sim, state, split)
     again = Simulation(comm, scene, disc)
     again.start()
