@@ -31,7 +31,7 @@ lint: setup
 	$(VENV)/bin/mypy parefg
 
 test: lint
-	$(PY) -m pytest -p no:cacheprovider tests
+	$(PY) -m pytest -p no:cacheprovider --durations=20 tests
 	$(MPIRUN) $(PY) -m pytest -p no:cacheprovider -q tests
 
 clean:
