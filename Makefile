@@ -14,6 +14,8 @@ export OMPI_MCA_rmaps_base_oversubscribe := 1
 # Never let pip replace Debian's numpy 1.24 (petsc4py is built against it).
 export PIP_CONSTRAINT := $(CURDIR)/scripts/setup/constraints.txt
 MPIRUN    := mpirun --timeout 1500 -n 2
+# The serial pass runs on up to 4 pytest-xdist workers (one per core), one BLAS thread each.
+WORKERS   := $(shell n=$$(nproc); echo $$(( n < 4 ? n : 4 )))
 
 .PHONY: setup demo test lint clean
 
@@ -31,7 +33,7 @@ lint: setup
 	$(VENV)/bin/mypy parefg
 
 test: lint
-	$(PY) -m pytest -p no:cacheprovider --durations=20 tests
+	OMP_NUM_THREADS=1 $(PY) -m pytest -n $(WORKERS) -p no:cacheprovider --durations=20 tests
 	$(MPIRUN) $(PY) -m pytest -p no:cacheprovider -q tests
 
 clean:

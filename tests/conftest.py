@@ -39,9 +39,14 @@ def comm():
     return MPI.COMM_WORLD
 
 
+# Set by Open MPI in a process that initialized MPI as a singleton (a pytest-xdist worker
+# does): inherited by a child `mpirun`, they make it join the parent's session and fail.
+SINGLETON_PREFIXES = ("PMIX_", "OMPI_MCA_ess", "OMPI_MCA_orte_", "OMPI_MCA_pmix", "OMPI_APP_CTX")
+
+
 def mpi_env():
     """Environment for child MPI jobs (Open MPI refuses root otherwise)."""
-    env = dict(os.environ)
+    env = {key: val for key, val in os.environ.items() if not key.startswith(SINGLETON_PREFIXES)}
     env.update(
         OMPI_ALLOW_RUN_AS_ROOT="1",
         OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",

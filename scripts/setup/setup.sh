@@ -28,6 +28,6 @@ echo "$petsc_dir/lib/python3/dist-packages" > "$site/parefg-petsc4py.pth"
 
 export PIP_CONSTRAINT="$PWD/scripts/setup/constraints.txt"
 .venv/bin/pip install -q --disable-pip-version-check --no-deps -e .
-.venv/bin/pip install -q --disable-pip-version-check pytest hypothesis ruff mypy
+.venv/bin/pip install -q --disable-pip-version-check pytest pytest-xdist hypothesis ruff mypy
 .venv/bin/python -c "import parefg, petsc4py, mpi4py, h5py, gmsh, numpy; assert numpy.__version__ < '2'"
 echo "setup: ok"
