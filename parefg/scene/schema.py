@@ -23,8 +23,8 @@ from pathlib import Path
 
 from parefg.discretization.weights import DEFAULT_WEIGHT, WEIGHTS
 from parefg.errors import InputError
+from parefg.geometry.cells import CELL_TYPES
 from parefg.geometry.geo import load_geo
-from parefg.geometry.gmsh_mesh import CELL_TYPES
 from parefg.geometry.jitter import MAX_JITTER
 from parefg.geometry.shapes import DEFAULT_SHAPE, SHAPES, domain_part_names
 from parefg.mechanics.normal_force import CONTACT_FORCES
