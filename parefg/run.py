@@ -271,28 +271,30 @@ def _start(comm, scene, disc, restart: str | None):
 def _open_writer(comm, sim, out_dir: Path, out: str | None) -> ResultWriter:
     """Create the output directory and the result writer (nothing is left if that fails)."""
     created = create_output_dir(comm, out_dir, out)
-    disc, contact = sim.disc, sim.disc.contact
     try:
         with phase(sim.timings, "output"):
-            return ResultWriter(
-                comm,
-                out_dir,
-                node_coords=disc.nodes.points,
-                node_rows=disc.nodes.rows,
-                n_nodes=disc.n_nodes,
-                contact_coords=np.zeros((0, 2)) if contact is None else contact.points,
-                contact_rows=np.zeros(0, dtype=np.int64) if contact is None else contact.rows,
-                n_contact=disc.n_contact,
-                metadata={
-                    "params": sim.scene.params,
-                    "version": __version__,
-                    "mpi_ranks": comm.size,
-                },
-            )
+            return result_writer(comm, sim, out_dir)
     except BaseException:
         if comm.rank == 0:
             remove_empty_dirs(created)
         raise
+
+
+def result_writer(comm, sim, out_dir: Path) -> ResultWriter:
+    """The writer of ``sim``'s results (nodes, Gamma_C points, the effective scene) in the
+    existing directory ``out_dir``.  Collective."""
+    disc, contact = sim.disc, sim.disc.contact
+    return ResultWriter(
+        comm,
+        out_dir,
+        node_coords=disc.nodes.points,
+        node_rows=disc.nodes.rows,
+        n_nodes=disc.n_nodes,
+        contact_coords=np.zeros((0, 2)) if contact is None else contact.points,
+        contact_rows=np.zeros(0, dtype=np.int64) if contact is None else contact.rows,
+        n_contact=disc.n_contact,
+        metadata={"params": sim.scene.params, "version": __version__, "mpi_ranks": comm.size},
+    )
 
 
 def _summary(comm, scene, disc, sim, start, errors=None, status="ok") -> dict:
