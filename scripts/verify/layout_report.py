@@ -1,8 +1,10 @@
 """The package's shape: one line per module, sizes, the longest functions, import layers.
 
 Prints the tree of ``parefg`` with each module's line count and the first line of its
-docstring, the longest functions, and every import that goes upward in the layer order
-(or forms a cycle).  Exits 1 when an import breaks the layering.
+docstring, the modules over MAX_MODULE_LINES and the functions over MAX_FUNCTION_LINES
+(STYLE.md: modules under ~400 lines, functions under ~50), the longest functions, and
+every import that goes upward in the layer order (or forms a cycle).  Exits 1 when an
+import breaks the layering.
 
     python scripts/verify/layout_report.py [--longest 15]
 """
@@ -13,6 +15,8 @@ import pathlib
 import sys
 
 PACKAGE = pathlib.Path(__file__).resolve().parents[2] / "parefg"
+MAX_MODULE_LINES = 400
+MAX_FUNCTION_LINES = 50
 
 #: lowest first: a module may import from its own layer or a lower one only
 LAYERS = (
@@ -80,10 +84,14 @@ def main() -> int:
     for name, (lines, doc) in modules.items():
         indent = "  " * name.count(".")
         print(f"{indent}{name.split('.')[-1]:<{28 - len(indent)}} {lines:5d}  {doc[:80]}")
+    long_modules = [m for m, (n, _) in modules.items() if n > MAX_MODULE_LINES]
     print(
         f"\n{len(modules)} modules, {sum(n for n, _ in modules.values())} lines;"
-        f" over 400 lines: {[m for m, (n, _) in modules.items() if n > 400]}"
+        f" over {MAX_MODULE_LINES} lines: {long_modules or 'none'}"
     )
+    long_functions = [f"{n} ({length}, {where})" for n, length, where in functions
+                      if length > MAX_FUNCTION_LINES]  # fmt: skip
+    print(f"functions over {MAX_FUNCTION_LINES} lines: {long_functions or 'none'}")
     print(f"\nlongest functions (of {len(functions)}):")
     for fname, length, where in sorted(functions, key=lambda f: -f[1])[: args.longest]:
         print(f"  {length:4d}  {fname:<32} {where}")
