@@ -55,9 +55,9 @@ class BoundaryOperators:
         global_index = np.cumsum(on_parts) - 1
         mine = np.flatnonzero(on_parts & (part.segment_owner == self.comm.rank))
         quadrature = segment_quadrature(
-            cloud.coords, cloud.segments, self.scene.quadrature, segment_ids=mine
+            cloud.coords, cloud.segments, self.scene.discretization.quadrature, segment_ids=mine
         )
-        n_gauss = self.scene.quadrature
+        n_gauss = self.scene.discretization.quadrature
         rows = global_index[quadrature.cell] * n_gauss + np.arange(len(quadrature.cell)) % n_gauss
         return quadrature, rows
 
@@ -84,7 +84,9 @@ class BoundaryOperators:
         if contact_parts:
             quadrature, rows = self._boundary_quadrature(contact_parts)
             on_contact = np.isin(cloud.segment_part, contact_parts)  # every rank's segments
-            self.n_contact = int(np.count_nonzero(on_contact)) * self.scene.quadrature
+            self.n_contact = (
+                int(np.count_nonzero(on_contact)) * self.scene.discretization.quadrature
+            )
             shape = self._shape(quadrature.points, gradients=False)
             with phase(self.timings, "assembly"):
                 part_of_point = cloud.segment_part[quadrature.cell]
@@ -107,17 +109,26 @@ class BoundaryOperators:
                     self.cloud,
                     self._nitsche_segments(),
                     np.unique(quadrature.cell),
-                    scene.quadrature,
-                    scene.lam,
-                    scene.mu,
+                    scene.discretization.quadrature,
+                    scene.material.lam,
+                    scene.material.mu,
                 )
-            beta = np.repeat(per_segment, scene.quadrature)  # points are grouped by segment
+            beta = np.repeat(
+                per_segment, scene.discretization.quadrature
+            )  # points are grouped by segment
         else:
-            beta = np.full(len(quadrature.weights), scene.alpha_dirichlet)
+            beta = np.full(len(quadrature.weights), scene.penalty.alpha_dirichlet)
         with phase(self.timings, "assembly"):
             assert quadrature.normals is not None
             local, load, traction = local_operators(
-                method, shape, quadrature.weights, quadrature.normals, beta, n, scene.lam, scene.mu
+                method,
+                shape,
+                quadrature.weights,
+                quadrature.normals,
+                beta,
+                n,
+                scene.material.lam,
+                scene.material.mu,
             )
             part = DirichletPart(
                 method=method.name,

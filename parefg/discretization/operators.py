@@ -105,7 +105,13 @@ class _Builder(BoundaryOperators):
         self.n_contact = 0
         with phase(self.timings, "mesh"):
             cloud = build_node_cloud(
-                comm, scene.domain, scene.h, scene.cells, scene.jitter, scene.seed, budget
+                comm,
+                scene.domain,
+                scene.discretization.h,
+                scene.discretization.cells,
+                scene.discretization.jitter,
+                scene.discretization.seed,
+                budget,
             )
             budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
             self.cloud, self.partition = partition_cloud(cloud, comm.size)
@@ -118,10 +124,10 @@ class _Builder(BoundaryOperators):
         self.n_dofs_local = 2 * self.n_nodes_local
         self.mls = MLS(
             self.cloud.coords,
-            scene.support * self.cloud.spacing,
-            scene.degree,
-            scene.weight,
-            support_factor=scene.support,
+            scene.discretization.support * self.cloud.spacing,
+            scene.discretization.degree,
+            scene.discretization.weight,
+            support_factor=scene.discretization.support,
         )
         self.conditions: list[np.ndarray] = []  # MLS condition numbers of every point set
 
@@ -163,7 +169,7 @@ class _Builder(BoundaryOperators):
         operators, error = None, None
         try:
             operators = assemble_domain(
-                self.mls, quadrature, scene.rho, lambda name: phase(self.timings, name)
+                self.mls, quadrature, scene.material.rho, lambda name: phase(self.timings, name)
             )
         except MLSError as failure:
             error = failure
@@ -175,7 +181,9 @@ class _Builder(BoundaryOperators):
             pattern = (operators.indptr, operators.indices)
             blocks = _mass_blocks(operators.mass)
             mass = self._square(interleaved(*pattern, blocks, diagonal_only=True))
-            blocks = _stiffness_blocks(operators.gradient_gram, scene.lam, scene.mu)
+            blocks = _stiffness_blocks(
+                operators.gradient_gram, scene.material.lam, scene.material.mu
+            )
             operators.gradient_gram = operators.mass = np.zeros(0)
             stiffness = self._square(interleaved(*pattern, blocks))
             del blocks
@@ -211,7 +219,7 @@ class _Builder(BoundaryOperators):
             cloud.coords,
             cloud.quads,
             cloud.triangles,
-            self.scene.quadrature,
+            self.scene.discretization.quadrature,
             quad_ids=np.flatnonzero(part.quad_owner == rank),
             triangle_ids=np.flatnonzero(part.triangle_owner == rank),
         )

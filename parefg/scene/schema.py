@@ -12,7 +12,7 @@ domain shapes and their keys from :data:`parefg.geometry.shapes.SHAPES`, weights
 :data:`parefg.timestepping.linear_solver.SOLVER_METHODS`, boundary types from
 :class:`parefg.boundary.BoundaryKind`.  :func:`validate` returns the effective params,
 defaults written back, that :mod:`parefg.scene.loader` turns into a
-:class:`~parefg.scene.loader.Scene`.
+:class:`~parefg.scene.sections.Scene`.
 """
 
 import copy

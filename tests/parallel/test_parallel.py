@@ -4,7 +4,6 @@ Runs serially and under ``mpirun -n 2``; every test reaches the same collectives
 rank.  On one rank "the last rank" is rank 0 itself.
 """
 
-import numpy as np
 import pytest
 from petsc4py import PETSc
 
