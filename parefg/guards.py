@@ -69,7 +69,9 @@ class DataGuard:
             rows = np.atleast_2d(values)  # (k, n), a view of values
             bad = None
             if nonnegative:
-                bad = ~(np.abs(rows) <= DATA_BOUND) | (rows < -FRICTION_FLOOR * self.scene.E)
+                bad = ~(np.abs(rows) <= DATA_BOUND) | (
+                    rows < -FRICTION_FLOOR * self.scene.material.E
+                )
                 rows[~bad & (rows < 0.0)] = 0.0
             elif not all_finite(rows) or np.abs(rows).max(initial=0.0) > DATA_BOUND:
                 bad = ~(np.abs(rows) <= DATA_BOUND)  # also NaN
@@ -226,13 +228,13 @@ def require_constraints(scene) -> None:
     Without a Dirichlet part and without a contact part, K has the rigid motions in its
     kernel and nothing else enters the static Jacobian.
     """
-    if scene.dynamic:
+    if scene.time.dynamic:
         return
     kinds = {bc.kind for bc in scene.boundaries.values()}
     if kinds & {BoundaryKind.DIRICHLET, BoundaryKind.CONTACT}:
         return
     raise InputError(
-        f'scene {scene.name}: time.scheme = "{scene.scheme}" needs a dirichlet or contact boundary '
-        "part: without one the rigid motions of the body are not constrained (singular "
+        f'scene {scene.name}: time.scheme = "{scene.time.scheme}" needs a dirichlet or contact '
+        "boundary part: without one the rigid motions of the body are not constrained (singular "
         'stiffness); add [boundary.NAME] type = "dirichlet", or use time.scheme = "newmark"'
     )

@@ -129,21 +129,6 @@ def wait_for_all(comm, patience: float | None, abort_code: int) -> None:
 
 
 # -- rows of distributed arrays ---------------------------------------------------------
-def gather_rows(comm, rows: np.ndarray, values: np.ndarray, n_rows: int, root: int = 0):
-    """A global (n_rows, ...) float array on ``root`` from each rank's rows; None elsewhere.
-
-    ``rows`` (n_local,) are this rank's global rows of ``values`` (n_local, ...); over all
-    ranks a permutation of 0..n_rows-1.  Collective.
-    """
-    pieces = comm.gather((rows, values), root=root)
-    if comm.rank != root:
-        return None
-    out = np.zeros((n_rows, *values.shape[1:]))
-    for piece_rows, piece_values in pieces:
-        out[piece_rows] = piece_values
-    return out
-
-
 def _alltoallv(comm, send: np.ndarray, send_counts: np.ndarray) -> np.ndarray:
     """Exchange a 1-D array in blocks: block r of ``send`` goes to rank r.  Collective."""
     recv_counts = np.empty(comm.size, dtype=np.int64)

@@ -146,7 +146,7 @@ def prepare(
     scene and its discretization are ``sim.scene`` and ``sim.disc``.  The problem size is
     checked against the machine first (InputError on every rank).  Nothing is written and
     no step is taken: ``state = sim.start()``, then ``state = sim.step(state, n)`` for
-    n = 1 .. ``sim.scene.n_steps``.  ``keep_history`` False keeps only the last row of
+    n = 1 .. ``sim.scene.time.n_steps``.  ``keep_history`` False keeps only the last row of
     ``sim.history`` (long runs).  The solvers read the scene's [solver] options as in a
     run (:func:`build_simulation`).  :func:`run_scene` is the whole run with its output.
     """
@@ -163,8 +163,8 @@ def build_simulation(comm, scene, disc, keep_history: bool = True) -> Simulation
     :func:`run_scene` (the whole run) both call it.
     """
     with (
-        scene_options(scene.solver_options),
-        petsc_configuration(comm, "the solvers", scene.solver_options),
+        scene_options(scene.solver.options),
+        petsc_configuration(comm, "the solvers", scene.solver.options),
     ):
         return Simulation(comm, scene, disc, keep_history=keep_history)
 
@@ -204,7 +204,7 @@ def run_scene(
     Returns the summary dict (the contents of summary.json).
     """
     options = dict(fail_at_step=fail_at_step, checkpoint_every=checkpoint_every)
-    with StopRequest(comm) as stop, scene_options(scene.solver_options) as from_scene:
+    with StopRequest(comm) as stop, scene_options(scene.solver.options) as from_scene:
         summary = _run(comm, scene, out, quiet, stop, restart, observers, max_memory, **options)
         warning = unused_options_warning(comm, from_scene)
     if warning and comm.rank == 0:
@@ -225,8 +225,9 @@ def _run(
     stop.reclaim()  # meshing (gmsh) may have replaced the SIGINT handler
     sim, state, first = _start(comm, scene, disc, restart)
     say(
-        f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs, {scene.n_steps} steps of {scene.dt:g}, "
-        f"degree {scene.degree}, {'contact' if sim.law else 'no contact'}"
+        f"  {disc.n_nodes} nodes, {disc.n_dofs} DOFs,"
+        f" {scene.time.n_steps} steps of {scene.time.dt:g}, degree {scene.discretization.degree},"
+        f" {'contact' if sim.law else 'no contact'}"
     )
     writer = _open_writer(comm, sim, out_dir, out)
     results = ResultsObserver(writer)
@@ -235,7 +236,7 @@ def _run(
     loop_observers: list[Observer] = [results]
     if checkpoint_every > 0:
         loop_observers.append(CheckpointObserver(out_dir / "checkpoint.h5", checkpoint_every))
-    loop_observers += [Progress(comm, scene.n_steps, quiet, first)]
+    loop_observers += [Progress(comm, scene.time.n_steps, quiet, first)]
     loop_observers += [Callback(observer) for observer in observers]
     try:
         state = time_loop(sim, state, first, loop_observers, stop, fail_at_step)
@@ -248,7 +249,7 @@ def _run(
             message = f"{error}; results so far in {out_dir}"
             raise Interrupted(message, error.exit_code - 128) from None
         raise
-    summary = _summary(comm, scene, disc, sim, start, errors=sim.errors(state.u, scene.T))
+    summary = _summary(comm, scene, disc, sim, start, errors=sim.errors(state.u, scene.time.T))
     writer.close(_flat(summary))
     summary["timings"]["total"] = time.perf_counter() - start
     _write_summary(comm, out_dir, summary)
@@ -260,7 +261,7 @@ def _run(
 def _start(comm, scene, disc, restart: str | None):
     """The simulation and the level it starts from: t = 0, or a checkpoint.  Collective."""
     sim = build_simulation(comm, scene, disc, keep_history=False)  # rows go to the writer
-    with petsc_configuration(comm, "the solvers", scene.solver_options):
+    with petsc_configuration(comm, "the solvers", scene.solver.options):
         state, first = sim.start(), 1  # sets up the mass solve (-mass_ options) too
     if restart is not None:
         snapshot = read_checkpoint(comm, Path(restart), sim)
@@ -271,28 +272,30 @@ def _start(comm, scene, disc, restart: str | None):
 def _open_writer(comm, sim, out_dir: Path, out: str | None) -> ResultWriter:
     """Create the output directory and the result writer (nothing is left if that fails)."""
     created = create_output_dir(comm, out_dir, out)
-    disc, contact = sim.disc, sim.disc.contact
     try:
         with phase(sim.timings, "output"):
-            return ResultWriter(
-                comm,
-                out_dir,
-                node_coords=disc.nodes.points,
-                node_rows=disc.nodes.rows,
-                n_nodes=disc.n_nodes,
-                contact_coords=np.zeros((0, 2)) if contact is None else contact.points,
-                contact_rows=np.zeros(0, dtype=np.int64) if contact is None else contact.rows,
-                n_contact=disc.n_contact,
-                metadata={
-                    "params": sim.scene.params,
-                    "version": __version__,
-                    "mpi_ranks": comm.size,
-                },
-            )
+            return result_writer(comm, sim, out_dir)
     except BaseException:
         if comm.rank == 0:
             remove_empty_dirs(created)
         raise
+
+
+def result_writer(comm, sim, out_dir: Path) -> ResultWriter:
+    """The writer of ``sim``'s results (nodes, Gamma_C points, the effective scene) in the
+    existing directory ``out_dir``.  Collective."""
+    disc, contact = sim.disc, sim.disc.contact
+    return ResultWriter(
+        comm,
+        out_dir,
+        node_coords=disc.nodes.points,
+        node_rows=disc.nodes.rows,
+        n_nodes=disc.n_nodes,
+        contact_coords=np.zeros((0, 2)) if contact is None else contact.points,
+        contact_rows=np.zeros(0, dtype=np.int64) if contact is None else contact.rows,
+        n_contact=disc.n_contact,
+        metadata={"params": sim.scene.params, "version": __version__, "mpi_ranks": comm.size},
+    )
 
 
 def _summary(comm, scene, disc, sim, start, errors=None, status="ok") -> dict:
@@ -307,8 +310,8 @@ def _summary(comm, scene, disc, sim, start, errors=None, status="ok") -> dict:
         "mpi_ranks": comm.size,
         "n_nodes": disc.n_nodes,
         "n_dofs": disc.n_dofs,
-        "n_steps": scene.n_steps,
-        "steps_done": int(round(sim.history[-1]["time"] / scene.dt)),
+        "n_steps": scene.time.n_steps,
+        "steps_done": int(round(sim.history[-1]["time"] / scene.time.dt)),
         "timings": timings,
         "newton_iterations": sim.newton_iterations,
         "linear_iterations": sim.linear_iterations,

@@ -115,9 +115,9 @@ def _row(axes, case, scene, summary) -> dict:
     errors = summary.get("errors", {})
     row = {key: value for (key, _), value in zip(axes, case, strict=True)}
     row.update(
-        h=scene.h,
-        dt=scene.dt,
-        degree=scene.degree,
+        h=scene.discretization.h,
+        dt=scene.time.dt,
+        degree=scene.discretization.degree,
         n_dofs=summary["n_dofs"],
         l2_rel=errors.get("l2_rel", np.nan),
         h1_rel=errors.get("h1_rel", np.nan),

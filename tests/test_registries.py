@@ -40,7 +40,7 @@ def test_a_registered_weight_is_a_scene_choice(monkeypatch):
         "linear", lambda r: np.where(r < 1, 1.0 - r, 0.0), lambda r: np.where(r < 1, -1.0, 0.0)
     )
     monkeypatch.setitem(weights.WEIGHTS, "linear", flat)
-    assert load_scene("square", ["discretization.weight=linear"]).weight == "linear"
+    assert load_scene("square", ["discretization.weight=linear"]).discretization.weight == "linear"
 
 
 def test_a_registered_shape_is_a_scene_choice(monkeypatch):
@@ -53,12 +53,12 @@ def test_a_registered_shape_is_a_scene_choice(monkeypatch):
 def test_a_registered_scheme_is_a_scene_choice(monkeypatch):
     monkeypatch.setitem(schemes.SCHEMES, "quasistatic", schemes.StaticScheme)
     scene = load_scene("square", ["time.scheme=quasistatic"])
-    assert scene.scheme == "quasistatic" and not scene.dynamic
+    assert scene.time.scheme == "quasistatic" and not scene.time.dynamic
     # The body force derived from [exact] follows the scheme's registry entry: a static
     # scheme has no inertia, so f = -div sigma, the same as under "static".
     static = load_scene("square", ["time.scheme=static"])
     x, y = np.array([0.3, 0.7]), np.array([0.6, 0.2])
-    np.testing.assert_array_equal(scene.body_force(x, y, 0.5), static.body_force(x, y, 0.5))
+    np.testing.assert_array_equal(scene.loads.f(x, y, 0.5), static.loads.f(x, y, 0.5))
 
 
 def test_boundary_kinds_are_one_enum():
@@ -98,15 +98,19 @@ def test_a_registered_contact_force_is_a_scene_choice(monkeypatch):
         name = "blunt"
 
     monkeypatch.setitem(normal_force.CONTACT_FORCES, "blunt", Blunt)
-    assert load_scene("impact", ["time.contact_force=blunt"]).contact_force == "blunt"
+    assert load_scene("impact", ["time.contact_force=blunt"]).time.contact_force == "blunt"
     # the default is the registry's first entry
-    assert load_scene("impact").contact_force == next(iter(normal_force.CONTACT_FORCES))
+    assert load_scene("impact").time.contact_force == next(iter(normal_force.CONTACT_FORCES))
 
 
 def test_penalty_keys_are_the_registered_kinds():
     scene = load_scene("square", ["penalty.alpha=5.0", "penalty.alpha_contact=7.0"])
     assert set(scene.params["penalty"]) == {"alpha"} | {f"alpha_{k}" for k in PENALTY_KINDS}
-    assert (scene.alpha_dirichlet, scene.alpha_contact, scene.alpha_friction) == (5.0, 7.0, 5.0)
+    assert (
+        scene.penalty.alpha_dirichlet,
+        scene.penalty.alpha_contact,
+        scene.penalty.alpha_friction,
+    ) == (5.0, 7.0, 5.0)
 
 
 def test_output_datasets_are_named_by_the_output_registry(monkeypatch):

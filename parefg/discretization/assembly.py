@@ -56,12 +56,11 @@ def value_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     """(n_points x n_nodes) scalar values S[q, I] = phi_I(x_q), columns sorted.
 
     It acts on each displacement component: the interleaved operator is kron(S, I_2)
-    (:class:`~parefg.discretization.operators.PointSet`).
+    (:class:`~parefg.discretization.point_set.PointSet`).
     """
     order, nodes, mask = _sorted_neighbours(shape, n_nodes)
     phi = np.take_along_axis(shape.phi, order, axis=1)[:, None, :]  # (n_points, 1, n_max)
     return _point_rows(nodes, mask, phi, np.zeros(1, dtype=np.int64), 1, n_nodes)
-
 
 
 def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
@@ -76,6 +75,7 @@ def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     dphi = np.take_along_axis(shape.dphi, order[:, :, None], axis=1)  # (n_points, n_max, 2)
     per_row = dphi.transpose(0, 2, 1)[:, [0, 1, 0, 1], :]  # (n_points, 4, n_max): d = 0, 1, 0, 1
     return _point_rows(nodes, mask, per_row, np.array([0, 0, 1, 1]), 2, 2 * n_nodes)
+
 
 @dataclass
 class Coupling:

@@ -113,6 +113,16 @@ def _about(count: float) -> str:
     return f"about {_format_count(count)}" if math.isfinite(count) else _format_count(count)
 
 
+class BudgetedDiscretization(Protocol):
+    """The node spacing and the support dilation of a scene's ``[discretization]``."""
+
+    @property
+    def h(self) -> float: ...
+
+    @property
+    def support(self) -> float: ...
+
+
 class BudgetedScene(Protocol):
     """What the budget reads of a scene itself (the estimates read the rest).
 
@@ -120,8 +130,7 @@ class BudgetedScene(Protocol):
     """
 
     name: str
-    h: float
-    support: float
+    discretization: BudgetedDiscretization
 
 
 @dataclass(frozen=True)
@@ -158,7 +167,8 @@ class Budget:
         """
         scene = self.scene
         what = (
-            f"scene {scene.name}: discretization.h = {scene.h:g} with support = {scene.support:g}"
+            f"scene {scene.name}: discretization.h = {scene.discretization.h:g}"
+            f" with support = {scene.discretization.support:g}"
             f" {found} {_about(size.n_nodes)} nodes"
         )
         if not size.n_dofs <= MAX_INDEX:
@@ -208,7 +218,7 @@ class Budget:
         gmsh.  Legitimate refinement is untouched while the budget allows it.  Found by
         bisection on log h (the estimate only grows as h shrinks).  Not collective.
         """
-        h = self.scene.h
+        h = self.scene.discretization.h
 
         def fits(size_h: float) -> bool:
             size = unstructured_size(self.scene, area, perimeter, size_h)

@@ -70,63 +70,83 @@ def assemble_domain(mls: MLS, quadrature: Quadrature, rho: float, timer) -> Doma
     ``timer(name)`` is a context manager timing the phases "neighbours", "mls" and
     "assembly".  Raises MLSError as :meth:`MLS.evaluate` does.
     """
-    points, n_nodes = quadrature.points, len(mls.nodes)
-    bounds, group_start = _blocks(quadrature.cell)
-    blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    passes = _BlockPasses(mls, quadrature, timer)
+    indptr, indices, row_lengths = passes.pattern()
+    return passes.fill(rho, indptr, indices, row_lengths)
 
-    def groups_of(first, last):  # the block's group starts, relative to its first point
+
+class _BlockPasses:
+    """The two passes of :func:`assemble_domain` over blocks of consecutive cells."""
+
+    def __init__(self, mls: MLS, quadrature: Quadrature, timer):
+        self.mls, self.quadrature, self.timer = mls, quadrature, timer
+        self.n_nodes = len(mls.nodes)
+        bounds, self.group_start = _blocks(quadrature.cell)
+        self.blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+    def groups_of(self, first: int, last: int) -> np.ndarray:
+        """The block's group starts, relative to its first point."""
+        group_start = self.group_start
         return group_start[(group_start >= first) & (group_start <= last)] - first
 
-    # pass 1: the pattern and the row lengths of S
-    rows, cols = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
-    row_lengths = np.zeros(len(points), dtype=np.int64)
-    for first, last in blocks:
-        with timer("neighbours"):
-            neighbours, mask = mls.find_neighbours(points[first:last])
+    def pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pass 1: the scalar pattern (indptr, indices) and the row lengths of S."""
+        mls, points, n_nodes, timer = self.mls, self.quadrature.points, self.n_nodes, self.timer
+        rows, cols = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+        row_lengths = np.zeros(len(points), dtype=np.int64)
+        for first, last in self.blocks:
+            with timer("neighbours"):
+                neighbours, mask = mls.find_neighbours(points[first:last])
+            with timer("assembly"):
+                *_, (_, _, pair_row, pair_col) = _pairs(
+                    neighbours, mask, self.groups_of(first, last), n_nodes
+                )
+                block_ptr, block_indices, _ = kernels.pairs_to_csr(pair_row, pair_col, n_nodes)
+                rows.append(np.repeat(np.arange(n_nodes), np.diff(block_ptr)))
+                cols.append(block_indices)
+                row_lengths[first:last] = mask.sum(axis=1)
         with timer("assembly"):
-            *_, (_, _, pair_row, pair_col) = _pairs(
-                neighbours, mask, groups_of(first, last), n_nodes
+            indptr, indices, _ = kernels.pairs_to_csr(
+                np.concatenate(rows), np.concatenate(cols), n_nodes
             )
-            block_ptr, block_indices, _ = kernels.pairs_to_csr(pair_row, pair_col, n_nodes)
-            rows.append(np.repeat(np.arange(n_nodes), np.diff(block_ptr)))
-            cols.append(block_indices)
-            row_lengths[first:last] = mask.sum(axis=1)
-    with timer("assembly"):
-        indptr, indices, _ = kernels.pairs_to_csr(
-            np.concatenate(rows), np.concatenate(cols), n_nodes
-        )
-        del rows, cols
-        mass = np.zeros((len(indices), 1, 1))
-        gradient_gram = np.zeros((len(indices), 2, 2))
-        value_indptr = np.concatenate([[0], np.cumsum(row_lengths)])
-        value_indices = np.empty(value_indptr[-1], dtype=np.int32)
-        value_data = np.empty(value_indptr[-1])
-    # pass 2: MLS per block, its Gram contributions and its rows of S
-    low, high = np.inf, 0.0
-    for first, last in blocks:
-        with timer("neighbours"):
-            neighbours, mask = mls.find_neighbours(points[first:last])
-        with timer("mls"):
-            shape = mls.evaluate(points[first:last], gradients=True, neighbours=(neighbours, mask))
-        low, high = min(low, shape.condition.min()), max(high, shape.condition.max())
+        return indptr, indices, row_lengths
+
+    def fill(self, rho: float, indptr, indices, row_lengths) -> DomainOperators:
+        """Pass 2: MLS per block, its Gram contributions and its rows of S."""
+        mls, quadrature, n_nodes, timer = self.mls, self.quadrature, self.n_nodes, self.timer
+        points = quadrature.points
         with timer("assembly"):
-            groups = groups_of(first, last)
-            node_start, nodes, (pair_start, pair_local, pair_row, pair_col) = _pairs(
-                neighbours, mask, groups, n_nodes
-            )
-            position = kernels.pair_positions(indptr, indices, pair_row, pair_col)
-            weights = quadrature.weights[first:last]
-            local_of = np.zeros(n_nodes, dtype=np.int64)
-            common = (neighbours, mask, groups, node_start, nodes, pair_start, pair_local, position)
-            phi = np.ascontiguousarray(shape.phi[:, :, None])
-            kernels.gram_groups(phi, phi, rho * weights, *common, mass, local_of)
-            dphi = np.ascontiguousarray(shape.dphi)
-            kernels.gram_groups(
-                dphi, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
-            )
-            piece = value_operator(shape, n_nodes)  # the block's rows, columns sorted
-            value_indices[value_indptr[first] : value_indptr[last]] = piece.indices
-            value_data[value_indptr[first] : value_indptr[last]] = piece.data
-    return DomainOperators(
-        indptr, indices, mass, gradient_gram, value_indptr, value_indices, value_data, (low, high)
-    )
+            mass = np.zeros((len(indices), 1, 1))
+            gradient_gram = np.zeros((len(indices), 2, 2))
+            value_indptr = np.concatenate([[0], np.cumsum(row_lengths)])
+            value_indices = np.empty(value_indptr[-1], dtype=np.int32)
+            value_data = np.empty(value_indptr[-1])
+        low, high = np.inf, 0.0
+        for first, last in self.blocks:
+            with timer("neighbours"):
+                neighbours, mask = mls.find_neighbours(points[first:last])
+            with timer("mls"):
+                block = points[first:last]
+                shape = mls.evaluate(block, gradients=True, neighbours=(neighbours, mask))
+            low, high = min(low, shape.condition.min()), max(high, shape.condition.max())
+            with timer("assembly"):
+                groups = self.groups_of(first, last)
+                node_start, nodes, (pair_start, pair_local, pair_row, pair_col) = _pairs(
+                    neighbours, mask, groups, n_nodes
+                )
+                position = kernels.pair_positions(indptr, indices, pair_row, pair_col)
+                weights = quadrature.weights[first:last]
+                local_of = np.zeros(n_nodes, dtype=np.int64)
+                block_pairs = (neighbours, mask, groups, node_start, nodes, pair_start, pair_local)
+                common = (*block_pairs, position)  # the arguments of gram_groups for M and K
+                phi = np.ascontiguousarray(shape.phi[:, :, None])
+                kernels.gram_groups(phi, phi, rho * weights, *common, mass, local_of)
+                dphi = np.ascontiguousarray(shape.dphi)
+                kernels.gram_groups(
+                    dphi, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
+                )
+                piece = value_operator(shape, n_nodes)  # the block's rows, columns sorted
+                value_indices[value_indptr[first] : value_indptr[last]] = piece.indices
+                value_data[value_indptr[first] : value_indptr[last]] = piece.data
+        values = (value_indptr, value_indices, value_data)
+        return DomainOperators(indptr, indices, mass, gradient_gram, *values, (low, high))

@@ -22,12 +22,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from parefg.geometry.cells import CellType
+
 # Unstructured gmsh meshes at target size h (measured on polygons, z and .geo domains):
 # N = 1.16 A / h^2 + 0.5 P / h (1.16 ~ 2 / sqrt 3: equilateral triangles).
 UNSTRUCTURED_DENSITY = 1.16
 # Local geometry in units of the node spacing c_I: (nodes per c^2, cell area / c^2), the
 # medians measured on gmsh's unstructured meshes, graded ones included (cloud_size).
-UNSTRUCTURED_LOCAL = {"quad": (1.03, 0.97), "tri": (1.155, 0.43)}
+UNSTRUCTURED_LOCAL = {CellType.QUAD: (1.03, 0.97), CellType.TRI: (1.155, 0.43)}
 # Mean incident edge of a node of a structured triangle grid: (4 + 2 sqrt 2) / 6 steps.
 TRIANGLE_GRID_SPACING = (4 + 2 * math.sqrt(2)) / 6
 # n_max / (mean neighbours): padded neighbour lists are as long as the fullest point's.
@@ -133,7 +135,7 @@ def _size(scene, n_nodes, n_cells, n_segments, kappa: float, alpha: float) -> Si
     points touch kappa |cell + disc of radius s c| nodes (Steiner: area + perimeter s c +
     pi s^2 c^2, perimeter ~ 4.5 sqrt(area)); a node couples with those within 2 s c.
     """
-    s, q = scene.support, scene.quadrature
+    s, q = scene.discretization.support, scene.discretization.quadrature
     mean = kappa * math.pi * s * s
     cell = kappa * (alpha + 4.5 * math.sqrt(alpha) * s + math.pi * s * s)
     return Size(
@@ -149,9 +151,9 @@ def _size(scene, n_nodes, n_cells, n_segments, kappa: float, alpha: float) -> Si
 
 def grid_size(scene, lx: float, ly: float) -> Size:
     """Size of the transfinite grid of a rectangle lx x ly (shapes "square", "rectangle")."""
-    n_x, n_y = _steps(lx, scene.h), _steps(ly, scene.h)
+    n_x, n_y = _steps(lx, scene.discretization.h), _steps(ly, scene.discretization.h)
     hx, hy = lx / n_x, ly / n_y
-    triangles = scene.cells == "tri"
+    triangles = scene.discretization.cells == CellType.TRI
     spacing = 0.5 * (hx + hy) * (TRIANGLE_GRID_SPACING if triangles else 1.0)
     kappa = (spacing / hx) * (spacing / hy)  # ratios: h = 1e-300 must not underflow
     alpha = 1 / kappa / (2 if triangles else 1)
@@ -165,14 +167,18 @@ def unstructured_size(scene, area: float, perimeter: float, h: float | None = No
 
     ``h`` defaults to the scene's (another size: :meth:`Budget.size_floor`).
     """
-    h = scene.h if h is None else h
+    h = scene.discretization.h if h is None else h
     boundary_nodes = perimeter / h
     n_nodes = UNSTRUCTURED_DENSITY * area / h / h + 0.5 * boundary_nodes + 3
     # Euler: 2 N - B - 2 triangles with B boundary nodes; about half as many quads
     n_cells = (
-        n_nodes - 0.5 * boundary_nodes if scene.cells == "quad" else 2 * n_nodes - boundary_nodes
+        n_nodes - 0.5 * boundary_nodes
+        if scene.discretization.cells == CellType.QUAD
+        else 2 * n_nodes - boundary_nodes
     )
-    return _size(scene, n_nodes, n_cells, boundary_nodes + 3, *UNSTRUCTURED_LOCAL[scene.cells])
+    return _size(
+        scene, n_nodes, n_cells, boundary_nodes + 3, *UNSTRUCTURED_LOCAL[scene.discretization.cells]
+    )
 
 
 def estimate_scene(scene) -> Size | None:

@@ -23,6 +23,7 @@ import tempfile
 import numpy as np
 
 from parefg.errors import InputError
+from parefg.geometry.cells import CELL_TYPES, CellType
 from parefg.geometry.cloud import (
     DIM,
     NodeCloud,
@@ -38,15 +39,13 @@ from parefg.parallel import call_on_root
 GMSH_TRIANGLE, GMSH_QUAD = 2, 3
 # Boundary segments on no listed part (traction-free, kept for output).
 FREE_PART = "_free"
-#: background cell types (``discretization.cells``): recombined quadrilaterals, triangles
-CELL_TYPES = ("quad", "tri")
 
 
 def build_node_cloud(
     comm,
     domain: dict,
     h: float,
-    cells: str = "quad",
+    cells: str = CellType.QUAD,
     jitter: float = 0.0,
     seed: int = 0,
     budget=None,
@@ -65,7 +64,7 @@ def build_node_cloud(
         "z" | "polygon" | "geo" and that shape's parameters.
     h : float
         Target node spacing (> 0).
-    cells : {"quad", "tri"}
+    cells : a :class:`~parefg.geometry.cells.CellType`
         Background cell type; "quad" may leave a few triangles on unstructured
         meshes.
     jitter, seed : float, int
@@ -135,7 +134,7 @@ def _fd_open(fd: int) -> bool:
 
 @_stdin_closed()
 @_private_home()
-def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> NodeCloud:
+def mesh_domain(domain: dict, h: float, cells: str = CellType.QUAD, budget=None) -> NodeCloud:
     """Build, mesh and extract one domain in this process (not collective).
 
     gmsh never reads stdin here (:func:`_gmsh_initialize`, :func:`_stdin_closed`).  With a
@@ -151,7 +150,7 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> Nod
     if not (isinstance(h, int | float | np.number) and math.isfinite(h) and h > 0):
         raise InputError(f"discretization.h: must be a positive number, got {h!r}")
     if cells not in CELL_TYPES:
-        raise InputError(f"cells: must be 'quad' or 'tri', got {cells!r}")
+        raise InputError(f"cells: must be one of {', '.join(CELL_TYPES)}; got {cells!r}")
     import gmsh  # imported lazily: only rank 0 meshes
 
     _gmsh_initialize(gmsh)
@@ -159,7 +158,9 @@ def mesh_domain(domain: dict, h: float, cells: str = "quad", budget=None) -> Nod
         # Size options first, so that a .geo file can read h as Mesh.MeshSizeMax.
         _set_mesh_options(gmsh, h, cells, recombine=False)
         built = shape.build(gmsh, domain, h, cells)
-        _set_mesh_options(gmsh, h, cells, recombine=cells == "quad" and built.lattice is None)
+        _set_mesh_options(
+            gmsh, h, cells, recombine=cells == CellType.QUAD and built.lattice is None
+        )
         if budget is not None and shape.outline is None:  # a .geo file: only gmsh knows it
             extent = _surfaces_extent(gmsh, built.surfaces)
             budget.check_extent(*extent)
@@ -243,7 +244,7 @@ def _extract_cloud(gmsh, built: GmshDomain, cells: str) -> NodeCloud:
         all_coords = origin + np.round((all_coords - origin) / step) * step
     quads = _cells_of_type(gmsh, built.surfaces, GMSH_QUAD, 4, row_of_tag)
     triangles = _cells_of_type(gmsh, built.surfaces, GMSH_TRIANGLE, 3, row_of_tag)
-    if cells == "tri" and len(quads):  # a .geo may force recombination: split quads
+    if cells == CellType.TRI and len(quads):  # a .geo may force recombination: split quads
         triangles = np.vstack([triangles, quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
         quads = np.empty((0, 4), dtype=np.int64)
     if len(quads) + len(triangles) == 0:

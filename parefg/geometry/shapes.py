@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from parefg.errors import InputError
+from parefg.geometry.cells import CellType
 from parefg.geometry.geo import load_geo
 from parefg.geometry.polygon import polygon_problem
 
@@ -116,7 +117,7 @@ def _build_box(gmsh, origin, size, h: float, cells: str) -> GmshDomain:
     for line, n_cells in zip(lines, (n_x, n_y, n_x, n_y), strict=True):
         gmsh.model.mesh.setTransfiniteCurve(line, n_cells + 1)
     gmsh.model.mesh.setTransfiniteSurface(surface)
-    if cells == "quad":
+    if cells == CellType.QUAD:
         gmsh.model.mesh.setRecombine(2, surface)
     parts = {name: [line] for name, line in zip(BOX_PART_NAMES, lines, strict=True)}
     lattice = (np.array([x0, y0], dtype=float), np.array([lx / n_x, ly / n_y]))

@@ -149,8 +149,10 @@ def check_checkpoint(path: Path, sim) -> dict:
             attrs = _read_attributes(where, handle)
             # the scene first: a different scene explains wrong shapes better than they do
             _check_scene(where, attrs["params"], sim.scene.params)
-            _check_step(where, attrs["step"], sim.scene.n_steps)
-            _check_history(where, attrs["history"], sim.history[0], attrs["step"] * sim.scene.dt)
+            _check_step(where, attrs["step"], sim.scene.time.n_steps)
+            _check_history(
+                where, attrs["history"], sim.history[0], attrs["step"] * sim.scene.time.dt
+            )
             for name, shape in _expected_shapes(sim).items():
                 _check_dataset(where, handle, name, shape)
     except (OSError, RuntimeError, TypeError, ValueError) as error:  # not HDF5, truncated

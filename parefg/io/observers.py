@@ -18,8 +18,8 @@ from parefg.scene.schema import OUTPUT_FIELDS
 
 def is_output_step(n: int, scene) -> bool:
     """Step n (0: the initial state) is written: the final one, and every ``every``-th."""
-    every = scene.output_every
-    return n == scene.n_steps or (every > 0 and n % every == 0)
+    every = scene.output.every
+    return n == scene.time.n_steps or (every > 0 and n % every == 0)
 
 
 def output_fields(sim, state) -> tuple[dict, dict]:
@@ -30,7 +30,7 @@ def output_fields(sim, state) -> tuple[dict, dict]:
     operator (the largest operator) is never built.  Before the first step the status
     is open and the tangential traction 0 (no step has been solved yet).
     """
-    nodes, scene, wanted = sim.disc.nodes, sim.scene, set(sim.scene.output_fields)
+    nodes, scene, wanted = sim.disc.nodes, sim.scene, set(sim.scene.output.fields)
     vectors = {"u": state.u, "v": state.v, "a": state.a}
     # each node field writes one dataset, named by the registry
     node_fields = {
@@ -40,7 +40,9 @@ def output_fields(sim, state) -> tuple[dict, dict]:
     }
     if "von_mises" in wanted:
         grads = nodes.evaluate_gradient(state.u)
-        node_fields[OUTPUT_FIELDS["von_mises"][0]] = von_mises(scene.lam, scene.mu, grads)
+        node_fields[OUTPUT_FIELDS["von_mises"][0]] = von_mises(
+            scene.material.lam, scene.material.mu, grads
+        )
     contact_fields = {}
     if sim.law is not None and "contact" in wanted:
         law = sim.law

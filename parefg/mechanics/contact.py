@@ -70,10 +70,10 @@ class ContactLaw(ContactFrame):
     def __init__(self, comm, disc, scene, guard: DataGuard | None = None):
         super().__init__(comm, disc.contact)
         self.guard = DataGuard(comm, scene) if guard is None else guard
-        self.alpha_c, self.alpha_t = scene.alpha_contact, scene.alpha_friction
+        self.alpha_c, self.alpha_t = scene.penalty.alpha_contact, scene.penalty.alpha_friction
         # the discrete gradient needs a previous level: static load steps use the endpoint
         self.normal_force: type[NormalForce] = (
-            CONTACT_FORCES[scene.contact_force] if scene.dynamic else EndpointForce
+            CONTACT_FORCES[scene.time.contact_force] if scene.time.dynamic else EndpointForce
         )
         self.dof_ranges = 2 * disc.partition.node_ranges
         self._bcs = _contact_parts(disc.cloud.part_names, scene.boundaries)

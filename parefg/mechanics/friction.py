@@ -36,6 +36,8 @@ import numpy as np
 
 #: the friction law of a contact part when the scene names none
 DEFAULT_FRICTION_LAW = "tresca"
+#: the default instead when the bound g is derived from [exact] (parefg.scene.boundaries)
+DERIVED_FRICTION_LAW = "given"
 
 
 #: relative distance to the obstacle below which a predicted point counts as touching

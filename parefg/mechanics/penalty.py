@@ -1,7 +1,8 @@
 """The penalty factors of the method, registered by kind in :data:`PENALTY_KINDS` (SPEC 4).
 
-Each kind is a ``[penalty] alpha_<kind>`` key (default: ``alpha``) and the Scene field of
-the same name.  Not collective.
+Each kind is a ``[penalty] alpha_<kind>`` key (default: ``alpha``) and the field of the
+same name of the Scene's penalty section (:class:`~parefg.scene.sections.PenaltySection`).
+Not collective.
 """
 
 #: kind -> the constraint its factor enforces

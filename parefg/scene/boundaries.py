@@ -14,7 +14,12 @@ from parefg.discretization.dirichlet import (
     NITSCHE_SAFETY,
 )
 from parefg.errors import InputError
-from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, FRICTION_LAWS, PRESSURE_LAWS
+from parefg.mechanics.friction import (
+    DEFAULT_FRICTION_LAW,
+    DERIVED_FRICTION_LAW,
+    FRICTION_LAWS,
+    PRESSURE_LAWS,
+)
 from parefg.scene.table import Table, as_nonnegative, as_number, as_vector, key_name, one_of, show
 
 #: boundary type -> (key, converter, default without [exact], derived from [exact]?)
@@ -84,7 +89,7 @@ def _read_friction_law(table: Table, has_exact: bool) -> None:
     shows the law chosen.
     """
     derived = has_exact and table.out.get("friction") is None
-    default = "given" if derived else DEFAULT_FRICTION_LAW
+    default = DERIVED_FRICTION_LAW if derived else DEFAULT_FRICTION_LAW
     table.take("friction_law", one_of(*FRICTION_LAWS), default)
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import sympy
 
 from parefg.boundary import BoundaryKind
+from parefg.discretization.dirichlet import DEFAULT_DIRICHLET_METHOD
 from parefg.errors import InputError
 from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, PRESSURE_LAWS
 from parefg.scene.expressions import SYMBOLS, compile_field, parse_expression
@@ -46,7 +47,7 @@ class BoundaryCondition:
     friction_is_zero: bool = True
     friction_law: str = DEFAULT_FRICTION_LAW
     friction_coefficient: float = 0.0
-    method: str = "penalty"  # a Dirichlet part's method (DIRICHLET_METHODS)
+    method: str = DEFAULT_DIRICHLET_METHOD  # a Dirichlet part's method (DIRICHLET_METHODS)
     safety: float = 0.0  # Nitsche's beta over the coercivity bound
 
 

@@ -3,8 +3,9 @@
 :func:`load_scene` reads a built-in scene or a TOML file, applies
 ``section.key=value`` overrides, checks every section and key against the
 schema (:mod:`parefg.scene.schema`: one-line :class:`InputError` naming the key),
-writes the defaults back so that ``Scene.params`` is the effective scene, and turns
-expressions into vectorized callables (:mod:`parefg.scene.fields`).  Given
+writes the defaults back so that ``Scene.params`` is the effective scene, and builds the
+:class:`~parefg.scene.sections.Scene`, one frozen section per TOML section, with the
+expressions turned into vectorized callables (:mod:`parefg.scene.fields`).  Given
 ``[exact] u``, the data the scene leaves out are derived from it
 (:mod:`parefg.scene.manufactured`).
 
@@ -17,69 +18,26 @@ from __future__ import annotations
 import copy
 import tomllib
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from parefg.errors import InputError
 from parefg.mechanics.penalty import PENALTY_KINDS
 from parefg.scene.schema import elastic_constants, plain_name, step_count, validate
+from parefg.scene.sections import (
+    DiscretizationSection,
+    InitialSection,
+    LoadsSection,
+    MaterialSection,
+    OutputSection,
+    PenaltySection,
+    Scene,
+    SolverSection,
+    TimeSection,
+)
 from parefg.timestepping.schemes import SCHEMES
-
-if TYPE_CHECKING:  # the expression modules import sympy: loaded by _build, when needed
-    from parefg.scene.fields import BoundaryCondition, Field
-    from parefg.scene.manufactured import ExactSolution
 
 SCENES_DIR = Path(__file__).with_name("builtin")
 MAX_SCENE_BYTES = 2**24  # a scene is a few hundred bytes; a long polygon a few hundred KB
-
-
-@dataclass
-class Scene:
-    """A validated scene: the effective ``params`` and everything derived from them."""
-
-    name: str
-    params: dict
-    source_dir: Path
-    domain: dict
-    part_names: list[str]
-    h: float
-    degree: int
-    weight: str
-    support: float
-    quadrature: int
-    cells: str
-    jitter: float
-    seed: int
-    E: float
-    nu: float
-    lam: float
-    mu: float
-    rho: float
-    scheme: str
-    dynamic: bool  # the scheme has inertia (SCHEMES[scheme].dynamic)
-    T: float
-    dt: float
-    beta: float
-    gamma: float
-    rho_inf: float | None
-    contact_force: str
-    n_steps: int
-    alpha_dirichlet: float
-    alpha_contact: float
-    alpha_friction: float
-    boundaries: dict[str, BoundaryCondition]
-    body_force: Field
-    initial_u: Field
-    initial_v: Field
-    # grad u0 (x, y) -> (2, 2, n) and div sigma(u0) (x, y) -> (2, n); None where u0 = 0
-    initial_grad: Field | None
-    initial_div_stress: Field | None
-    exact: ExactSolution | None
-    output_every: int
-    output_fields: list[str]
-    solver_method: str  # a name of parefg.timestepping.linear_solver.SOLVER_METHODS
-    solver_options: dict[str, str]  # PETSc options of the [solver] table (method excluded)
 
 
 def builtin_scenes() -> dict[str, str]:
@@ -176,64 +134,94 @@ def _apply_override(raw: dict, text: str, where: str) -> None:
     table[keys[-1]] = value
 
 
-# keys of [discretization] copied into Scene fields of the same name
-_DISCRETIZATION_FIELDS = ("h", "degree", "weight", "support", "quadrature", "cells")
-
-
 def _build(where: str, params: dict, part_names: list[str], source_dir: Path) -> Scene:
     """Turn validated params into a Scene with callables."""
     # sympy (~1/3 s to import) only where expressions are compiled: not for `parefg scenes`
     from parefg.scene import fields
     from parefg.scene.checks import SignChecks
-    from parefg.scene.manufactured import ManufacturedSolution, initial_elasticity
-    from parefg.scene.symbolic import DerivativeBudget
+    from parefg.scene.manufactured import initial_elasticity
 
-    discretization, time = params["discretization"], params["time"]
-    E, nu, lam, mu = elastic_constants(params["material"])
-    rho = params["material"]["rho"]
-    dynamic = SCHEMES[time["scheme"]].dynamic
+    material, time = _material(params["material"]), _time(where, params["time"])
     manufactured = None
     if "exact" in params:
         exact_u = fields.scene_expressions(where, "exact.u", params["exact"]["u"])
-        derivatives = DerivativeBudget(where, "exact.u")
-        manufactured = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
-    checks = SignChecks(where, params, E)
-    initial_grad, initial_div_stress = initial_elasticity(
-        where, params["initial"].get("u"), manufactured, lam, mu, rho
+        manufactured = _manufactured(where, exact_u, material, time.dynamic)
+    checks = SignChecks(where, params, material.E)
+    initial_u = params["initial"].get("u")
+    grad, div_stress = initial_elasticity(
+        where, initial_u, manufactured, material.lam, material.mu, material.rho
     )
+    initial_field = fields.initial_field
+    output = params["output"]
     return Scene(
         name=params["name"],
         params=params,
         source_dir=source_dir,
         domain=copy.deepcopy(params["domain"]),
         part_names=list(part_names),
-        **{key: discretization[key] for key in _DISCRETIZATION_FIELDS},
-        jitter=discretization.get("jitter", 0.0),
-        seed=discretization.get("seed", 0),
-        E=E,
-        nu=nu,
-        lam=lam,
-        mu=mu,
-        rho=rho,
-        **{key: time[key] for key in ("scheme", "T", "dt", "beta", "gamma", "contact_force")},
-        dynamic=dynamic,
-        rho_inf=time.get("rho_inf"),
-        n_steps=step_count(where, time),
-        **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS},
+        discretization=_discretization(params["discretization"]),
+        material=material,
+        time=time,
+        penalty=PenaltySection(
+            **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS}
+        ),
         boundaries={
             name: fields.boundary_condition(where, name, table, manufactured, checks)
             for name, table in params.get("boundary", {}).items()
         },
-        body_force=fields.vector_field(
-            where, "loads.f", params["loads"].get("f"), manufactured, "f"
+        # loads before initial: the fields compile in the order of the flat Scene's
+        loads=LoadsSection(
+            f=fields.vector_field(where, "loads.f", params["loads"].get("f"), manufactured, "f")
         ),
-        initial_u=fields.initial_field(where, "u", params["initial"].get("u"), manufactured),
-        initial_v=fields.initial_field(where, "v", params["initial"].get("v"), manufactured),
-        initial_grad=initial_grad,
-        initial_div_stress=initial_div_stress,
+        initial=InitialSection(
+            u=initial_field(where, "u", initial_u, manufactured),
+            v=initial_field(where, "v", params["initial"].get("v"), manufactured),
+            grad=grad,
+            div_stress=div_stress,
+        ),
         exact=manufactured.solution() if manufactured else None,
-        output_every=params["output"]["every"],
-        output_fields=list(params["output"]["fields"]),
-        solver_method=params["solver"]["method"],
-        solver_options={k: v for k, v in params["solver"].items() if k != "method"},
+        output=OutputSection(every=output["every"], fields=tuple(output["fields"])),
+        solver=_solver(params["solver"]),
+    )
+
+
+def _solver(table: dict) -> SolverSection:
+    """The [solver] section: the method, and the rest of the table as PETSc options."""
+    options = {key: value for key, value in table.items() if key != "method"}
+    return SolverSection(method=table["method"], options=options)
+
+
+def _manufactured(where: str, exact_u, material: MaterialSection, dynamic: bool):
+    """The ManufacturedSolution of ``[exact] u`` (sympy expressions) in this material."""
+    from parefg.scene.manufactured import ManufacturedSolution
+    from parefg.scene.symbolic import DerivativeBudget
+
+    derivatives = DerivativeBudget(where, "exact.u")
+    lam, mu, rho = material.lam, material.mu, material.rho
+    return ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
+
+
+def _discretization(table: dict) -> DiscretizationSection:
+    """The [discretization] section; jitter and seed are 0 when absent (no jitter)."""
+    keys = ("h", "degree", "weight", "support", "quadrature", "cells")
+    return DiscretizationSection(
+        **{key: table[key] for key in keys},
+        jitter=table.get("jitter", 0.0),
+        seed=table.get("seed", 0),
+    )
+
+
+def _material(table: dict) -> MaterialSection:
+    """The [material] section with both pairs of elastic constants."""
+    E, nu, lam, mu = elastic_constants(table)
+    return MaterialSection(E=E, nu=nu, lam=lam, mu=mu, rho=table["rho"])
+
+
+def _time(where: str, table: dict) -> TimeSection:
+    """The [time] section, with the step count and whether the scheme has inertia."""
+    return TimeSection(
+        **{key: table[key] for key in ("scheme", "T", "dt", "beta", "gamma", "contact_force")},
+        dynamic=SCHEMES[table["scheme"]].dynamic,
+        rho_inf=table.get("rho_inf"),
+        n_steps=step_count(where, table),
     )

@@ -12,7 +12,7 @@ domain shapes and their keys from :data:`parefg.geometry.shapes.SHAPES`, weights
 :data:`parefg.timestepping.linear_solver.SOLVER_METHODS`, boundary types from
 :class:`parefg.boundary.BoundaryKind`.  :func:`validate` returns the effective params,
 defaults written back, that :mod:`parefg.scene.loader` turns into a
-:class:`~parefg.scene.loader.Scene`.
+:class:`~parefg.scene.sections.Scene`.
 """
 
 import copy
@@ -23,8 +23,8 @@ from pathlib import Path
 
 from parefg.discretization.weights import DEFAULT_WEIGHT, WEIGHTS
 from parefg.errors import InputError
+from parefg.geometry.cells import CELL_TYPES
 from parefg.geometry.geo import load_geo
-from parefg.geometry.gmsh_mesh import CELL_TYPES
 from parefg.geometry.jitter import MAX_JITTER
 from parefg.geometry.shapes import DEFAULT_SHAPE, SHAPES, domain_part_names
 from parefg.mechanics.normal_force import CONTACT_FORCES

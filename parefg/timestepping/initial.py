@@ -47,7 +47,10 @@ class InitialState:
         disc = self.disc
         points = disc.domain.points
         x, y = points.T
-        values = self.guard.evaluate(("initial", key), field, points, 0.0, x, y).T * self.scene.rho
+        values = (
+            self.guard.evaluate(("initial", key), field, points, 0.0, x, y).T
+            * self.scene.material.rho
+        )
         self.guard.check()
         result = disc.create_vec()
         if self.comm.allreduce(bool(np.any(values != 0.0))):
@@ -63,7 +66,7 @@ class InitialState:
             # once per run (u_0, v_0 projections and a_0): a direct factorization by
             # default, CG with the iterative method; -mass_ksp_type/-mass_pc_type override
             configure_linear_solver(ksp)
-            set_from_options(ksp, "mass_", SOLVER_METHODS[self.scene.solver_method].mass)
+            set_from_options(ksp, "mass_", SOLVER_METHODS[self.scene.solver.method].mass)
             self._mass_ksp = ksp
         self._mass_ksp.solve(rhs, out)
         if self._mass_ksp.getConvergedReason() < 0:
@@ -78,10 +81,10 @@ class InitialState:
         takes u_0 by the elliptic projection of u0 (:meth:`_elliptic_projection`), so that
         a_0 is the L2 projection of the true acceleration; otherwise (or u0 = 0) by L2.
         """
-        u = self._project("u", self.scene.initial_u)
-        v = self._project("v", self.scene.initial_v)
+        u = self._project("u", self.scene.initial.u)
+        v = self._project("v", self.scene.initial.v)
         a = self.disc.create_vec()
-        if self.scheme.dynamic and self.dirichlet_names and self.scene.initial_grad is not None:
+        if self.scheme.dynamic and self.dirichlet_names and self.scene.initial.grad is not None:
             self._elliptic_projection(u)
         if self.scheme.dynamic:
             rhs = forces.copy()
@@ -134,7 +137,7 @@ class InitialState:
         operator.setOption(PETSc.Mat.Option.SPD, True)
         operator.setNearNullSpace(self._rigid_body_modes(operator))
         solver: LinearStepSolver | ContactStepSolver
-        method = self.scene.solver_method
+        method = self.scene.solver.method
         if self.law is None:
             solver = LinearStepSolver(self.comm, operator, method)
         else:
@@ -159,7 +162,7 @@ class InitialState:
         points = disc.domain.points
         x, y = points.T
         key = ("initial", "u")
-        div = self.guard.evaluate(key, scene.initial_div_stress, points, 0.0, x, y)  # (2, n_q)
+        div = self.guard.evaluate(key, scene.initial.div_stress, points, 0.0, x, y)  # (2, n_q)
         disc.domain.integrate(-div.T, rhs)
         for name in self.neumann_names:
             boundary = disc.boundary[name]
@@ -168,7 +171,7 @@ class InitialState:
         for name in self.dirichlet_names:
             boundary = disc.boundary[name]
             x, y = boundary.points.T
-            trace = self.guard.evaluate(key, scene.initial_u, boundary.points, 0.0, x, y)
+            trace = self.guard.evaluate(key, scene.initial.u, boundary.points, 0.0, x, y)
             disc.dirichlet_parts[name].add_load(trace.T, rhs)
         self.guard.check()
         return rhs
@@ -178,11 +181,14 @@ class InitialState:
         x, y = points.points.T
 
         def gradient(x, y):
-            return self.scene.initial_grad(x, y).reshape(4, -1)  # (4, n)
+            return self.scene.initial.grad(x, y).reshape(4, -1)  # (4, n)
 
         rows = self.guard.evaluate(("initial", "u"), gradient, points.points, 0.0, x, y)
         grad = rows.T.reshape(-1, 2, 2)  # (n, 2, 2), [q, i, j] = d u0_i / d x_j
         strain = 0.5 * (grad + np.swapaxes(grad, 1, 2))
         trace = np.trace(strain, axis1=1, axis2=2)  # (n,)
-        stress = self.scene.lam * trace[:, None, None] * np.eye(2) + 2 * self.scene.mu * strain
+        stress = (
+            self.scene.material.lam * trace[:, None, None] * np.eye(2)
+            + 2 * self.scene.material.mu * strain
+        )
         return np.einsum("qij,qj->qi", stress, points.normals)

@@ -63,7 +63,7 @@ def time_loop(sim, state: State, first: int, observers=(), stop=None, fail_at_st
     raises a SolverError before that step (the CLI's ``--fail-at-step``, for tests of
     failure handling).  Returns the final level.
     """
-    n_steps = sim.scene.n_steps
+    n_steps = sim.scene.time.n_steps
     for n in range(first, n_steps + 1):
         if fail_at_step is not None and n == fail_at_step:
             raise SolverError(f"injected failure at step {n} (--fail-at-step)")

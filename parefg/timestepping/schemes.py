@@ -44,7 +44,7 @@ class NewmarkScheme:
     history: tuple[float, float] | None = None
 
     def __init__(self, scene):
-        self.dt, self.beta, self.gamma = scene.dt, scene.beta, scene.gamma
+        self.dt, self.beta, self.gamma = scene.time.dt, scene.time.beta, scene.time.gamma
 
     @property
     def mass_coefficient(self) -> float:
@@ -118,7 +118,7 @@ class GeneralizedAlphaScheme(NewmarkScheme):
     name = "generalized-alpha"
 
     def __init__(self, scene):
-        self.dt, self.rho_inf = scene.dt, scene.rho_inf
+        self.dt, self.rho_inf = scene.time.dt, scene.time.rho_inf
         parameters = generalized_alpha_parameters(self.rho_inf)
         self.alpha_m, self.alpha_f = parameters["alpha_m"], parameters["alpha_f"]
         self.beta, self.gamma = parameters["beta"], parameters["gamma"]
@@ -140,7 +140,7 @@ class StaticScheme:
     trapezoidal = False
 
     def __init__(self, scene):
-        self.dt = scene.dt
+        self.dt = scene.time.dt
 
     def predict(self, state: State, ut: PETSc.Vec, vt: PETSc.Vec) -> None:
         state.u.copy(ut)
@@ -158,7 +158,7 @@ SCHEMES = {scheme.name: scheme for scheme in (NewmarkScheme, GeneralizedAlphaSch
 
 def make_scheme(scene):
     """The scheme named by ``[time] scheme``."""
-    return SCHEMES[scene.scheme](scene)
+    return SCHEMES[scene.time.scheme](scene)
 
 
 def relative_errors(comm, disc, exact, u: PETSc.Vec, t: float) -> dict[str, float]:

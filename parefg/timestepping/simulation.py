@@ -59,9 +59,9 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             self.a_const = self._a_const()
             self.solver: LinearStepSolver | ContactStepSolver
             if self.law is None:
-                self.solver = LinearStepSolver(comm, self.a_const, scene.solver_method)
+                self.solver = LinearStepSolver(comm, self.a_const, scene.solver.method)
             else:
-                self.solver = _contact_solver(comm, self.a_const, self.law, scene.solver_method)
+                self.solver = _contact_solver(comm, self.a_const, self.law, scene.solver.method)
             self.rigid_modes = self._rigid_mode_check()
         self.history: list[dict[str, float]] = []
         self._energy_budget = [0.0, 0.0]  # initial stored energy, largest |external work|
@@ -130,7 +130,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         part = self._part
         points = disc.domain.points
         x, y = points.T
-        force = self.guard.evaluate(("loads", "f"), scene.body_force, points, t, x, y, t)
+        force = self.guard.evaluate(("loads", "f"), scene.loads.f, points, t, x, y, t)
         disc.domain.integrate(force.T, part)
         total.axpy(1.0, part)
         for name in self.neumann_names:

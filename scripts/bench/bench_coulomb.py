@@ -100,11 +100,11 @@ def run(source: str, overrides: list[str], solver: str) -> dict:
         sim.solver = SemismoothNewton(sim)
     state, start, status = sim.start(), time.perf_counter(), "ok"
     try:
-        for n in range(1, scene.n_steps + 1):
+        for n in range(1, scene.time.n_steps + 1):
             state = sim.step(state, n)
     except SolverError as error:
         status = f"failed at step {n}: {str(error)[:80]}"
-    errors = sim.errors(state.u, scene.T) if scene.exact and status == "ok" else {}
+    errors = sim.errors(state.u, scene.time.T) if scene.exact and status == "ok" else {}
     return {
         "newton": sim.newton_iterations,
         "outer": sim.coulomb_iterations if solver == "fp" else "-",

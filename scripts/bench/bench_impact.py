@@ -84,7 +84,7 @@ def run_bar(comm, alpha: float, dt: float, beta: float, method: str) -> dict:
     mass_y = sim._quadratic(disc.mass, ones)
     area = comm.allreduce(float(law.weights.sum()))
     pressures, energies, closed = [], [_energy(sim.history[-1])], []
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, scene.time.n_steps + 1):
         state = sim.step(state, n)
         step_mean = _step_mean_pressure(law, law.kinematics(state.u)[0], method)
         pressures.append(comm.allreduce(float(np.dot(law.weights, step_mean))) / area)

@@ -51,7 +51,7 @@ def _run(overrides: list[str], steps: int):
     state = sim.start()
     for n in range(1, steps + 1):
         state = sim.step(state, n)
-    errors = sim.errors(state.u, steps * sim.scene.dt)
+    errors = sim.errors(state.u, steps * sim.scene.time.dt)
     return sim, errors, sim.timings["solve"]
 
 

@@ -170,7 +170,7 @@ def run_case(degree: int, h: float, steps: int) -> dict:
     warm = scene_at(0.25)  # imports, numba compilation, PETSc set-up
     warm_disc = build_discretization(comm, warm)
     warm_sim = Simulation(comm, warm, warm_disc)
-    warm_sim.errors(warm_sim.step(warm_sim.start(), 1).u, warm.dt)
+    warm_sim.errors(warm_sim.step(warm_sim.start(), 1).u, warm.time.dt)
     del warm_disc, warm_sim
     scene = scene_at(h)
     tracemalloc.start()
@@ -201,18 +201,18 @@ def run_case(degree: int, h: float, steps: int) -> dict:
     recorder.end("simulation")
     seconds["simulation"] = time.perf_counter() - tic
     tic = time.perf_counter()
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, scene.time.n_steps + 1):
         state = sim.step(state, n)
     recorder.end("time_loop")
     seconds["time_loop"] = time.perf_counter() - tic
     steady = recorder.total()
     held = holders(disc, sim)
     tic = time.perf_counter()
-    errors = sim.errors(state.u, scene.T)
+    errors = sim.errors(state.u, scene.time.T)
     recorder.end("errors")
     seconds["errors"] = time.perf_counter() - tic
     traced_peak = tracemalloc.get_traced_memory()[1]
-    row = {"degree": degree, "h": h, "dofs": disc.n_dofs, "steps": scene.n_steps}
+    row = {"degree": degree, "h": h, "dofs": disc.n_dofs, "steps": scene.time.n_steps}
     row["steady"] = steady
     row["peak"] = max(memory["peak"] for memory in recorder.rows.values())
     for name in PHASES:

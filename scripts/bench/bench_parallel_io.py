@@ -15,9 +15,8 @@ results/bench_parallel_io_np<P>.csv.
     nice .venv/bin/python scripts/bench/bench_parallel_io.py
     mpirun -n 2 nice .venv/bin/python scripts/bench/bench_parallel_io.py
 
-It calls only interfaces that are also on the code before the parallel-I/O change
-(ResultWriter, write_checkpoint, read_checkpoint), so running it with PYTHONPATH set to
-an older checkout measures that code.
+It calls the writer run.py creates (:func:`parefg.run.result_writer`), write_checkpoint
+and read_checkpoint.
 """
 
 import pickle
@@ -39,8 +38,7 @@ from mpi4py import MPI  # noqa: E402
 
 from parefg.io.checkpoint import read_checkpoint, write_checkpoint  # noqa: E402
 from parefg.io.observers import output_fields  # noqa: E402
-from parefg.io.output import ResultWriter  # noqa: E402
-from parefg.run import prepare  # noqa: E402
+from parefg.run import prepare, result_writer  # noqa: E402
 
 
 class CountingComm(MPI.Intracomm):
@@ -132,21 +130,6 @@ def measured(comm: CountingComm, task, repeats: int) -> dict:
     }
 
 
-def writer_for(comm, sim, out_dir: Path) -> ResultWriter:
-    disc = sim.disc
-    return ResultWriter(
-        comm,
-        out_dir,
-        node_coords=disc.nodes.points,
-        node_rows=disc.nodes.rows,
-        n_nodes=disc.n_nodes,
-        contact_coords=disc.contact.points,
-        contact_rows=disc.contact.rows,
-        n_contact=disc.n_contact,
-        metadata={"params": sim.scene.params, "mpi_ranks": comm.size},
-    )
-
-
 def main():
     parser = benchlib.parser(__doc__, repeats=5)
     parser.add_argument("--h", type=float, default=1 / 223, help="node spacing")
@@ -162,7 +145,7 @@ def main():
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
         root = Path(comm.bcast(scratch, root=0))
-        writer = writer_for(comm, sim, root / "run")
+        writer = result_writer(comm, sim, root / "run")
         steps = iter(range(1, 10**6))
 
         def output():

@@ -42,7 +42,7 @@ def run(source: str, overrides) -> tuple[Simulation, object, float]:
     sim = prepare(COMM, source, overrides)
     state = sim.start()
     largest = state.a.norm(3)
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
         largest = max(largest, state.a.norm(3))
     return sim, state, largest

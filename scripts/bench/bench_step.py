@@ -53,7 +53,7 @@ def step_times(comm, overrides):
     sim = prepare(comm, "square", overrides)
     scene = sim.scene
     state, solves, steps = sim.start(), [], []
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, scene.time.n_steps + 1):
         before, tic = sim.timings["solve"], time.perf_counter()
         state = sim.step(state, n)
         steps.append(time.perf_counter() - tic)
@@ -64,7 +64,7 @@ def step_times(comm, overrides):
     units = {
         "floor": median_call(comm, lambda: ksp.solve(rhs, x)),
         "mult": median_call(comm, lambda: sim.a_const.mult(rhs, x)),
-        "forces": median_call(comm, lambda: sim.external_forces(scene.T, x)),
+        "forces": median_call(comm, lambda: sim.external_forces(scene.time.T, x)),
     }
     return solves, steps, units, sim
 
@@ -94,9 +94,9 @@ def main():
                 "whole_ratio": statistics.median(steps) / floor,
                 "operator_mult_s": statistics.median(units["mult"]),
                 "load_evaluation_s": statistics.median(units["forces"]),
-                "newton_per_step": sim.newton_iterations / sim.scene.n_steps,
+                "newton_per_step": sim.newton_iterations / sim.scene.time.n_steps,
                 "factorizations": sim.solver.factorizations,
-                "steps": sim.scene.n_steps,
+                "steps": sim.scene.time.n_steps,
             }
         )
     if comm.rank == 0:

@@ -117,9 +117,12 @@ def derive_data(scene) -> GwflData:
     u = [sympy.sympify(e) for e in scene.exact.exprs]
     grad = sympy.Matrix(2, 2, lambda i, j: sympy.diff(u[i], (x, y)[j]))
     eps = (grad + grad.T) / 2
-    sigma = sympy.Float(scene.lam) * eps.trace() * sympy.eye(2) + 2 * sympy.Float(scene.mu) * eps
+    sigma = (
+        sympy.Float(scene.material.lam) * eps.trace() * sympy.eye(2)
+        + 2 * sympy.Float(scene.material.mu) * eps
+    )
     div_sigma = [sympy.diff(sigma[i, 0], x) + sympy.diff(sigma[i, 1], y) for i in range(2)]
-    f = [scene.rho * sympy.diff(ui, t, 2) - div_sigma[i] for i, ui in enumerate(u)]
+    f = [scene.material.rho * sympy.diff(ui, t, 2) - div_sigma[i] for i, ui in enumerate(u)]
     traction = sigma * sympy.Matrix([nx, ny])
     contact = [bc for bc in scene.boundaries.values() if bc.kind == "contact"]
     (bottom,) = contact
@@ -181,10 +184,11 @@ def _model(scene, data: GwflData, mesh, degree: int) -> _Square:
     mimd = gf.MeshImData(mim, bottom)
     md = gf.Model("real")
     md.add_fem_variable("u", mf)
-    k = scene.dt
-    constants = {"t": 0.0, "lambda": scene.lam, "mu": scene.mu, "rho": scene.rho,
-                 "cM": scene.rho / (scene.beta * k**2), "alpha_C": scene.alpha_contact,
-                 "alpha_T": scene.alpha_friction}  # fmt: skip
+    k = scene.time.dt
+    material, penalty = scene.material, scene.penalty
+    constants = {"t": 0.0, "lambda": material.lam, "mu": material.mu, "rho": material.rho,
+                 "cM": material.rho / (scene.time.beta * k**2), "alpha_C": penalty.alpha_contact,
+                 "alpha_T": penalty.alpha_friction}  # fmt: skip
     for name, value in constants.items():
         md.add_initialized_data(name, [value])
     md.add_macro("s", data.gap)
@@ -235,15 +239,15 @@ def _initial_acceleration(scene, data: GwflData, square: _Square, u0: np.ndarray
 
 
 def solve(scene, data: GwflData, degree: int = 2) -> dict:
-    """Run the scene with GetFEM P``degree`` on h = scene.h (1/h squares a side); time it.
+    """Run the scene with GetFEM P``degree`` at the scene's h (1/h squares a side); time it.
 
     Returns errors at T (relative L2 and H1 seminorm, as parefg's summary), DOFs, steps,
     Newton iterations and the wall time of everything after the data strings: mesh, FEM,
     model, initial state, time loop and the error integrals.
     """
-    n = round(1.0 / scene.h)
-    if abs(n * scene.h - 1.0) > 1e-9:
-        raise ValueError(f"h = {scene.h}: GetFEM's square needs 1/h an integer")
+    n = round(1.0 / scene.discretization.h)
+    if abs(n * scene.discretization.h - 1.0) > 1e-9:
+        raise ValueError(f"h = {scene.discretization.h}: GetFEM's square needs 1/h an integer")
     tic = time.perf_counter()
     square = _model(scene, data, _mesh(n), degree)
     md, mf, mimd = square.model, square.mf, square.mimd
@@ -253,9 +257,9 @@ def solve(scene, data: GwflData, degree: int = 2) -> dict:
     a = _initial_acceleration(scene, data, square, u)
     md.set_variable("u", u)
     md.set_variable("xi", md.interpolation("u.Tg", mimd, bottom))
-    k, beta, gamma = scene.dt, scene.beta, scene.gamma
+    k, beta, gamma = scene.time.dt, scene.time.beta, scene.time.gamma
     newton = 0
-    for step in range(1, scene.n_steps + 1):
+    for step in range(1, scene.time.n_steps + 1):
         ut = u + k * v + k**2 * (0.5 - beta) * a
         vt = v + k * (1.0 - gamma) * a
         md.set_variable("t", [step * k])
@@ -276,7 +280,7 @@ def solve(scene, data: GwflData, degree: int = 2) -> dict:
         md.set_variable("xi", md.interpolation(slip, mimd, bottom))
     errors = relative_errors(square, data)
     seconds = time.perf_counter() - tic
-    return {"dofs": mf.nbdof(), "steps": scene.n_steps, "newton": newton, "seconds": seconds,
+    return {"dofs": mf.nbdof(), "steps": scene.time.n_steps, "newton": newton, "seconds": seconds,
             **errors}  # fmt: skip
 
 
@@ -296,14 +300,14 @@ def relative_errors(square: _Square, data: GwflData) -> dict:
 def data_mismatch(scene, data: GwflData, n_points: int = 20, seed: int = 0) -> float:
     """Largest relative difference between the GWFL data and parefg's own data callables.
 
-    Evaluated by GetFEM (the strings as it parses them) and by parefg (scene.body_force,
+    Evaluated by GetFEM (the strings as it parses them) and by parefg (scene.loads.f,
     the boundary callables, exact u and grad u, u0, v0) at random points and times, with
     Normal replaced by a random unit vector: the check that both codes solve the same
     continuous problem.
     """
     rng = np.random.default_rng(seed)
     x, y = rng.random(n_points), rng.random(n_points)
-    t, angle = rng.uniform(0.1, scene.T), rng.uniform(0.0, 2.0 * np.pi)
+    t, angle = rng.uniform(0.1, scene.time.T), rng.uniform(0.0, 2.0 * np.pi)
     nx, ny = np.cos(angle), np.sin(angle)
     mesh = _mesh(1)
     md = gf.Model("real")
@@ -317,7 +321,7 @@ def data_mismatch(scene, data: GwflData, n_points: int = 20, seed: int = 0) -> f
 
     bcs = {bc.kind: bc for bc in scene.boundaries.values()}
     pairs = [
-        (getfem_values(data.f, (2,)), scene.body_force(x, y, t).T),
+        (getfem_values(data.f, (2,)), scene.loads.f(x, y, t).T),
         (getfem_values(data.u, (2,)), bcs["dirichlet"].value(x, y, t).T),
         (getfem_values(data.traction, (2,)), bcs["neumann"].traction(x, y, t, nx, ny).T),
         (getfem_values(data.friction, ()), bcs["contact"].friction(x, y, t, nx, ny)),
@@ -325,7 +329,7 @@ def data_mismatch(scene, data: GwflData, n_points: int = 20, seed: int = 0) -> f
     ]
     md.set_variable("t", [0.0])
     pairs += [
-        (getfem_values(data.u, (2,)), scene.initial_u(x, y).T),
-        (getfem_values(data.v, (2,)), scene.initial_v(x, y).T),
+        (getfem_values(data.u, (2,)), scene.initial.u(x, y).T),
+        (getfem_values(data.v, (2,)), scene.initial.v(x, y).T),
     ]
     return max(float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)) for a, b in pairs)

@@ -73,7 +73,7 @@ def run_case(comm, path: str, sets: list[str]) -> dict:
     tic = time.perf_counter()
     simulation = prepare(comm, path, sets)
     state = simulation.step(simulation.start(), 1)
-    errors = simulation.errors(state.u, simulation.scene.T)
+    errors = simulation.errors(state.u, simulation.scene.time.T)
     elapsed = comm.allreduce(time.perf_counter() - tic, op=MPI.MAX)
     scene = simulation.scene
     return {
@@ -81,8 +81,8 @@ def run_case(comm, path: str, sets: list[str]) -> dict:
         "h1_rel": errors["h1_rel"],
         "time": elapsed,
         "n_dofs": simulation.disc.n_dofs,
-        "quadrature_used": scene.quadrature,
-        "support_used": scene.support,
+        "quadrature_used": scene.discretization.quadrature,
+        "support_used": scene.discretization.support,
     }
 
 

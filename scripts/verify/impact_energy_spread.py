@@ -47,10 +47,10 @@ def energy_ratio(comm, eps: float) -> tuple[np.ndarray, float]:
     scene = load_scene("impact", [*overrides, f"initial.v=[{vx!r}, {vy!r}]"])
     sim = Simulation(comm, scene, build_discretization(comm, scene))
     state = sim.start()
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, scene.time.n_steps + 1):
         state = sim.step(state, n)
     energy = np.array([sum(r[c] for c in COLUMNS) - r["external_work"] for r in sim.history])
-    return energy / energy[0], scene.dt
+    return energy / energy[0], scene.time.dt
 
 
 def main() -> None:

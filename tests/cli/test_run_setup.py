@@ -20,10 +20,14 @@ TINY = ["discretization.h=0.25", "discretization.degree=1", "time.dt=0.25", "tim
 
 def test_prepare_applies_the_overrides(comm):
     sim = prepare(comm, "square", TINY)
-    assert (sim.scene.h, sim.scene.dt, sim.scene.n_steps) == (0.25, 0.25, 2)
+    assert (sim.scene.discretization.h, sim.scene.time.dt, sim.scene.time.n_steps) == (
+        0.25,
+        0.25,
+        2,
+    )
     assert (sim.disc.n_nodes, sim.disc.n_dofs) == (25, 50)
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
     assert len(sim.history) == 3  # t = 0 and both steps
     assert sim.history[-1]["time"] == pytest.approx(0.5)
@@ -32,7 +36,7 @@ def test_prepare_applies_the_overrides(comm):
 def test_prepare_keeps_only_the_last_row_when_asked(comm):
     sim = prepare(comm, "square", TINY, keep_history=False)
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
     assert len(sim.history) == 1 and sim.history[0]["time"] == pytest.approx(0.5)
 

@@ -108,8 +108,9 @@ def case(request):
     )
     disc = build_discretization(MPI.COMM_WORLD, scene)
     cloud = disc.cloud
-    mls = MLS(cloud.coords, scene.support * cloud.spacing, scene.degree, scene.weight,
-              support_factor=scene.support)  # fmt: skip
+    settings = scene.discretization
+    mls = MLS(cloud.coords, settings.support * cloud.spacing, settings.degree, settings.weight,
+              support_factor=settings.support)  # fmt: skip
     return scene, disc, mls
 
 
@@ -122,8 +123,8 @@ def test_mass_and_stiffness_equal_reference(case):
     n, weights = disc.n_nodes, disc.domain.weights
     phi = reference_scalar(shape, n)
     grads = [reference_scalar(shape, n, d) for d in range(2)]
-    mass = reference_interleave(reference_gram(phi, scene.rho * weights, phi))
-    stiffness = reference_stiffness(grads, weights, scene.lam, scene.mu)
+    mass = reference_interleave(reference_gram(phi, scene.material.rho * weights, phi))
+    stiffness = reference_stiffness(grads, weights, scene.material.lam, scene.material.mu)
     assert_equal_matrices(disc.owned["mass"].toarray(), owned_dense(disc, mass))
     assert_equal_matrices(disc.owned["stiffness"].toarray(), owned_dense(disc, stiffness))
     assert_equal_matrices(petsc_local_rows(disc.stiffness), owned_dense(disc, stiffness))
@@ -173,19 +174,21 @@ def test_dirichlet_and_contact_pattern_equal_reference(case):
             assert bc.method == "nitsche"
             points, beta = disc.boundary[name], disc.dirichlet_parts[name].beta
             shape = mls.evaluate(points.points, gradients=True)
-            dirichlet += reference_nitsche(shape, points, beta, n, scene.lam, scene.mu)
+            dirichlet += reference_nitsche(
+                shape, points, beta, n, scene.material.lam, scene.material.mu
+            )
     assert_equal_matrices(disc.owned["dirichlet"].toarray(), owned_dense(disc, dirichlet))
     assert_equal_matrices(petsc_local_rows(disc.dirichlet), owned_dense(disc, dirichlet))
 
     penalty_scene = load_scene(
-        "square", [f"discretization.degree={scene.degree}", "discretization.h=0.0625",
-                   "boundary.top.method=penalty"]
+        "square", [f"discretization.degree={scene.discretization.degree}",
+                   "discretization.h=0.0625", "boundary.top.method=penalty"]
     )  # fmt: skip
     penalty = build_discretization(MPI.COMM_WORLD, penalty_scene)
     points = penalty.boundary["top"]
     phi = reference_scalar(mls.evaluate(points.points, gradients=False), n)
     gram = reference_interleave(reference_gram(phi, points.weights, phi))
-    reference = owned_dense(penalty, penalty_scene.alpha_dirichlet * gram)
+    reference = owned_dense(penalty, penalty_scene.penalty.alpha_dirichlet * gram)
     assert_equal_matrices(penalty.owned["dirichlet"].toarray(), reference)
 
     phi = reference_scalar(mls.evaluate(disc.contact.points, gradients=False), n)

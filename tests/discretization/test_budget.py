@@ -129,7 +129,7 @@ def test_max_memory_lowers_and_raises_the_limit(tmp_path):
     assert not out.exists()
     # the same scene passes the default budget (in-process: the run itself is not needed)
     scene = load_scene("square", ["discretization.h=0.015625"])
-    assert scene.degree == 2
+    assert scene.discretization.degree == 2
     check_problem_size(COMM, scene)
     # and a huge one passes a huge --max-memory (then fails for lack of memory: not run)
     huge = load_scene("square", ["discretization.h=1e-3"])
@@ -249,9 +249,16 @@ def geo_domain(path: Path, parts: list[str]) -> list[str]:
 
 def actual_size(scene):
     """(nodes, cells, domain points, padded neighbours) of the run gmsh and MLS make."""
-    cloud = build_node_cloud(COMM, scene.domain, scene.h, scene.cells)
-    quadrature = cell_quadrature(cloud.coords, cloud.quads, cloud.triangles, scene.quadrature)
-    mls = MLS(cloud.coords, scene.support * cloud.spacing, scene.degree, scene.weight)
+    cloud = build_node_cloud(COMM, scene.domain, scene.discretization.h, scene.discretization.cells)
+    quadrature = cell_quadrature(
+        cloud.coords, cloud.quads, cloud.triangles, scene.discretization.quadrature
+    )
+    mls = MLS(
+        cloud.coords,
+        scene.discretization.support * cloud.spacing,
+        scene.discretization.degree,
+        scene.discretization.weight,
+    )
     neighbours, _ = mls.find_neighbours(quadrature.points)
     n_cells = len(cloud.quads) + len(cloud.triangles)
     return cloud, (cloud.n_nodes, n_cells, len(quadrature.points), neighbours.shape[1])
@@ -297,7 +304,9 @@ def test_geo_that_fits_its_bounding_box_passes_both_checks(h, cells):
     assert estimate_scene(scene) is None  # known only once gmsh has read the file
     box = unstructured_size(scene, 2.0 * 1.0, 2 * (2.0 + 1.0))
     budget = Budget(scene, memory_per_rank(box, 1), host_ranks=1, n_ranks=1, given=True)
-    cloud = build_node_cloud(COMM, scene.domain, scene.h, scene.cells, budget=budget)
+    cloud = build_node_cloud(
+        COMM, scene.domain, scene.discretization.h, scene.discretization.cells, budget=budget
+    )
     budget.check_cloud(COMM, cloud)
     assert abs(cloud.n_nodes / box.n_nodes - 1) < 0.2
 
@@ -351,7 +360,7 @@ def test_node_cloud_beyond_its_estimate_is_refused_before_mls(tmp_path_factory):
         "discretization.quadrature=5",
     ]
     scene = load_scene("square", sets)
-    cloud = build_node_cloud(COMM, scene.domain, scene.h, scene.cells)
+    cloud = build_node_cloud(COMM, scene.domain, scene.discretization.h, scene.discretization.cells)
     from_box = memory_per_rank(unstructured_size(scene, 1.0, 4.0), 1)
     from_cloud = memory_per_rank(cloud_size(scene, cloud), 1)
     assert from_cloud > 1.1 * CLOUD_SLACK * from_box  # the premise of the test
@@ -364,8 +373,10 @@ def test_node_cloud_beyond_its_estimate_is_refused_before_mls(tmp_path_factory):
     # Meshed under that budget, gmsh clamps the cluster's h/4 to the budget's size floor:
     # fewer nodes, and the cloud fits (Budget.size_floor).
     floor = budget.size_floor(1.0, 4.0)
-    assert scene.h / 4 < floor < scene.h
-    coarser = build_node_cloud(COMM, scene.domain, scene.h, scene.cells, budget=budget)
+    assert scene.discretization.h / 4 < floor < scene.discretization.h
+    coarser = build_node_cloud(
+        COMM, scene.domain, scene.discretization.h, scene.discretization.cells, budget=budget
+    )
     assert coarser.n_nodes < cloud.n_nodes
     budget.check_cloud(COMM, coarser)
 
@@ -424,7 +435,7 @@ from parefg.scene.loader import load_scene
 
 scene = load_scene("square", sys.argv[1:])
 budget = Budget(scene, 0.5 * GB, host_ranks=1, n_ranks=1, given=True)
-print(mesh_domain(scene.domain, scene.h, scene.cells, budget).n_nodes)
+print(mesh_domain(scene.domain, scene.discretization.h, scene.discretization.cells, budget).n_nodes)
 """
 
 
@@ -502,12 +513,14 @@ def test_size_floor_leaves_legitimate_refinement_alone(source, name, parts, exte
     """
     scene = load_scene(source, [*geo_domain(REPO / "meshes" / name, parts), "discretization.h=0.1"])
     budget = Budget(scene, 8 * GB, host_ranks=1, n_ranks=1, given=True)
-    assert budget.size_floor(*extent) < scene.h / 4
+    assert budget.size_floor(*extent) < scene.discretization.h / 4
     if COMM.rank == 0:  # meshing is rank 0's
         from parefg.geometry.gmsh_mesh import mesh_domain
 
-        bounded = mesh_domain(scene.domain, scene.h, scene.cells, budget)
-        free = mesh_domain(scene.domain, scene.h, scene.cells)
+        bounded = mesh_domain(
+            scene.domain, scene.discretization.h, scene.discretization.cells, budget
+        )
+        free = mesh_domain(scene.domain, scene.discretization.h, scene.discretization.cells)
         assert bounded.n_nodes == free.n_nodes > 100
         np.testing.assert_array_equal(bounded.coords, free.coords)
         np.testing.assert_array_equal(bounded.quads, free.quads)

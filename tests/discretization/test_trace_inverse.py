@@ -29,14 +29,17 @@ def _top_constants(h: float, degree: int, material=()) -> np.ndarray:
     cloud = disc.cloud
     segments = np.flatnonzero(cloud.segment_part == cloud.part_names.index("top"))
     mls = _mls(scene, cloud)
-    return trace_inverse_constants(mls, cloud, segments, scene.quadrature, scene.lam, scene.mu)
+    return trace_inverse_constants(
+        mls, cloud, segments, scene.discretization.quadrature, scene.material.lam, scene.material.mu
+    )
 
 
 def _mls(scene, cloud):
     from parefg.discretization.mls import MLS
 
-    return MLS(cloud.coords, scene.support * cloud.spacing, scene.degree, scene.weight,
-               support_factor=scene.support)  # fmt: skip
+    settings = scene.discretization
+    return MLS(cloud.coords, settings.support * cloud.spacing, settings.degree, settings.weight,
+               support_factor=settings.support)  # fmt: skip
 
 
 @serial
@@ -81,7 +84,14 @@ def _smallest_eigenvalue(scale: float) -> float:
         beta = part.beta * scale / 1.01  # the bound 2 C_e n_c times scale
         nitsche = DIRICHLET_METHODS["nitsche"]
         matrix, _, _ = local_operators(
-            nitsche, shape, points.weights, points.normals, beta, disc.n_nodes, scene.lam, scene.mu
+            nitsche,
+            shape,
+            points.weights,
+            points.normals,
+            beta,
+            disc.n_nodes,
+            scene.material.lam,
+            scene.material.mu,
         )
         total += matrix.toarray()
     return float(np.linalg.eigvalsh(total)[0])

@@ -118,10 +118,14 @@ def test_folded_cloud_is_an_input_error_naming_the_jitter():
 
 def test_scene_jitter_key():
     scene = load_scene("square", ["discretization.jitter=0.3", "discretization.seed=5"])
-    assert (scene.jitter, scene.seed) == (0.3, 5)
+    assert (scene.discretization.jitter, scene.discretization.seed) == (0.3, 5)
     assert scene.domain == {"shape": "square"}
     plain = load_scene("square")
-    assert (plain.jitter, plain.seed, plain.domain) == (0.0, 0, {"shape": "square"})
+    assert (plain.discretization.jitter, plain.discretization.seed, plain.domain) == (
+        0.0,
+        0,
+        {"shape": "square"},
+    )
     assert "jitter" not in plain.params["discretization"]
     for bad in ("0.5", "-0.1", '"a"'):
         with pytest.raises(InputError, match=r"discretization\.jitter"):

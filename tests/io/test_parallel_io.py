@@ -129,7 +129,7 @@ def test_snapshot_restore_round_trip_through_a_checkpoint(comm, tmp_path, steppe
     loaded = read_checkpoint(comm, path, sim)
     for name in ("u", "v", "a", "slip", "contact_level"):
         np.testing.assert_array_equal(loaded[name], before[name])
-    assert loaded["step"] == 2 and loaded["time"] == pytest.approx(2 * sim.scene.dt)
+    assert loaded["step"] == 2 and loaded["time"] == pytest.approx(2 * sim.scene.time.dt)
     assert loaded["history"] == before["history"]
     assert comm.allreduce(bool(np.any(before["slip"] != 0)), op=MPI.LOR)  # a sliding state
     restored = sim.restore(loaded)

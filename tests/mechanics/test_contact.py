@@ -81,7 +81,7 @@ def test_line_search_never_increases_the_step_energy(scene_name, overrides):
     """Every line-search step has J_n(after) <= J_n(before) + 1e-12 |J_n(before)|."""
     sim = simulation(scene_name, overrides)
     records = record_line_searches(sim.solver)
-    advance(sim, sim.start(), 1, sim.scene.n_steps)
+    advance(sim, sim.start(), 1, sim.scene.time.n_steps)
     log = np.array(records)  # (n_newton, 2)
     # one entry per Newton iteration (a flying body's step has none: its predictor is exact)
     assert len(log) == sum(row["newton_iterations"] for row in sim.history) > 0
@@ -121,8 +121,8 @@ def test_newton_converges_for_alpha_from_1e2_to_1e12(scene_name):
         alpha = factor / h  # E = 1 in all three scenes
         sets = [f"penalty.alpha_contact={alpha}", f"penalty.alpha_friction={alpha}"]
         sim = simulation(scene_name, SHORT_RUNS[scene_name] + sets)
-        advance(sim, sim.start(), 1, sim.scene.n_steps)
-        assert len(sim.history) == sim.scene.n_steps + 1
+        advance(sim, sim.start(), 1, sim.scene.time.n_steps)
+        assert len(sim.history) == sim.scene.time.n_steps + 1
         worst.append(max(row["newton_iterations"] for row in sim.history))
     assert max(worst) < 50, worst  # SNES max_it is 200: far from cycling
 
@@ -132,7 +132,7 @@ def test_square_slides_at_the_bound_like_the_exact_solution():
     """At T every Gamma_C point is closed, slides forward (u'_tau = sin t (1 + x) > 0) and
     carries |f| = g = mu (1 - cos t)(1 + x) to round-off; g is derived from [exact]."""
     sim = simulation("square")
-    n_steps = sim.scene.n_steps
+    n_steps = sim.scene.time.n_steps
     state = advance(sim, sim.start(), 1, n_steps - 1)
     law = sim.law
     slip_before = law.slip.copy()
@@ -140,7 +140,7 @@ def test_square_slides_at_the_bound_like_the_exact_solution():
     un, ut = law.kinematics(state.u)
     _, friction = law.forces(un, ut)
     x = law.points[:, 0]
-    g_exact = sim.scene.mu * (1 - np.cos(sim.scene.T)) * (1 + x)
+    g_exact = sim.scene.material.mu * (1 - np.cos(sim.scene.time.T)) * (1 + x)
     assert everywhere(un > law.gap)
     assert everywhere(np.abs(law.bound - g_exact) <= 1e-12)
     assert everywhere(np.abs(np.abs(friction) - law.bound) <= 1e-9 * law.bound)
@@ -162,7 +162,7 @@ def stick_run(friction_bound: float):
     state = sim.start()
     xi_0 = sim.law.slip.copy()
     stuck_throughout = True
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
         un, ut = sim.law.kinematics(state.u)
         stuck_throughout &= everywhere(sim.law.status(un, ut) == STICK)
@@ -183,12 +183,12 @@ def test_manufactured_stick_solution_does_not_slip():
     law = sim.law
     un, ut = law.kinematics(state.u)
     _, friction = law.forces(un, ut)
-    f_exact = sim.scene.mu * (1 - np.cos(sim.scene.T)) * (1 + law.points[:, 0])
+    f_exact = sim.scene.material.mu * (1 - np.cos(sim.scene.time.T)) * (1 + law.points[:, 0])
     assert stuck_throughout
     assert everywhere(law.slip == xi_0)
     assert global_max(np.abs(ut - xi_0)) <= 0.5 / law.alpha_t
     assert global_max(np.abs(friction - f_exact)) <= 0.05 * 2 * f_exact.max(initial=0.0) + 1e-12
-    assert sim.errors(state.u, sim.scene.T)["l2_rel"] < 1e-2
+    assert sim.errors(state.u, sim.scene.time.T)["l2_rel"] < 1e-2
 
 
 def test_stick_solution_slides_when_the_bound_is_below_the_traction():
@@ -207,7 +207,7 @@ def test_impact_closes_rebounds_and_opens():
     sim = simulation("impact")
     state = sim.start()
     velocities = []
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
         velocities.append(mean_vertical_velocity(sim, state))
     active = np.array([row["active_contact_points"] for row in sim.history])
@@ -229,7 +229,7 @@ def test_frictionless_impact_reaching_the_gap_exactly_at_a_step():
     t = 0.05, where the active set flips on round-off; Newton must still converge (the
     update falls below -snes_stol: the iterate sits on the kink)."""
     sim = simulation("impact", ["boundary.bottom.friction=0", "time.T=0.06"])
-    advance(sim, sim.start(), 1, sim.scene.n_steps)
+    advance(sim, sim.start(), 1, sim.scene.time.n_steps)
 
 
 def test_status_after_a_sliding_step_reports_slip():
@@ -237,7 +237,7 @@ def test_status_after_a_sliding_step_reports_slip():
     written to the output (step_status) is taken with the slip the step was solved with:
     on the square every point slides, so every point must report SLIP."""
     sim = simulation("square")
-    advance(sim, sim.start(), 1, sim.scene.n_steps)
+    advance(sim, sim.start(), 1, sim.scene.time.n_steps)
     assert everywhere(sim.law.step_status == SLIP)
 
 
@@ -257,7 +257,7 @@ def mean_velocity(sim: Simulation, state) -> np.ndarray:
 def flight(law_overrides):
     """The impact block in flight (every Gamma_C point open): simulation, final state."""
     sim = simulation("impact", BEFORE_CONTACT + law_overrides)
-    state = advance(sim, sim.start(), 1, sim.scene.n_steps)
+    state = advance(sim, sim.start(), 1, sim.scene.time.n_steps)
     assert everywhere(sim.law.step_status == OPEN)
     return sim, state
 
@@ -300,11 +300,11 @@ def test_square_errors_are_the_given_friction_errors():
     errors = {}
     for law in ("given", "tresca"):
         sim = simulation("square", [*short, f'boundary.bottom.friction_law="{law}"'])
-        state = advance(sim, sim.start(), 1, sim.scene.n_steps)
-        errors[law] = sim.errors(state.u, sim.scene.T)
+        state = advance(sim, sim.start(), 1, sim.scene.time.n_steps)
+        errors[law] = sim.errors(state.u, sim.scene.time.T)
     sim = simulation("square", short)
-    state = advance(sim, sim.start(), 1, sim.scene.n_steps)
-    default = sim.errors(state.u, sim.scene.T)
+    state = advance(sim, sim.start(), 1, sim.scene.time.n_steps)
+    default = sim.errors(state.u, sim.scene.time.T)
     for key in ("l2_rel", "h1_rel"):
         assert default[key] == pytest.approx(errors["given"][key], rel=1e-12)
         assert errors["tresca"][key] == pytest.approx(errors["given"][key], rel=1e-9)

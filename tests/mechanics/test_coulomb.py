@@ -83,7 +83,7 @@ def slide(scenes):
     points stick, the step's outer iterations, the dissipation increment)."""
     sim = simulation(scenes["slide"])
     state, rows = sim.start(), []
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
         law, row = sim.law, sim.history[-1]
         closed = law.step_status != OPEN
@@ -137,25 +137,25 @@ def test_a_flying_body_carries_no_coulomb_friction(scenes):
     flight = ["boundary.bottom.gap=0.05", "initial.v=[0.5, -1.0]", "loads.f=[0, 0]"]
     sim = simulation(scenes["slide"], [*flight, "time.T=0.04"])
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
         assert everywhere(sim.law.step_status == OPEN)
     assert mean_velocity(sim, state)[0] == pytest.approx(0.5, rel=1e-12, abs=0)
     assert abs(sim.history[-1]["dissipated_energy"]) <= 1e-12 * sim.history[0]["kinetic_energy"]
-    assert sim.coulomb_iterations == sim.scene.n_steps  # one outer iteration: g stays 0
+    assert sim.coulomb_iterations == sim.scene.time.n_steps  # one outer iteration: g stays 0
 
 
 def coulomb_errors(source: str, overrides) -> dict[str, float]:
     sim = simulation(source, overrides)
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
     law = sim.law
     # at the final state every sliding point carries exactly mu_f p (the converged bound)
     un = law.kinematics(state.u)[0]
     slip = law.step_status == 2
     assert everywhere(np.isclose(np.abs(law.step_friction[slip]), 0.3 * law.pressure(un)[slip]))
-    return sim.errors(state.u, sim.scene.T)
+    return sim.errors(state.u, sim.scene.time.T)
 
 
 def fitted_rate(sizes, errs) -> float:
@@ -198,9 +198,9 @@ def test_coulomb_matches_given_friction_with_the_exact_bound(scenes):
     COMM.barrier()
     sim = simulation(path)
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
-    given = sim.errors(state.u, sim.scene.T)
+    given = sim.errors(state.u, sim.scene.time.T)
     for key in ("l2_rel", "h1_rel"):
         assert coulomb[key] == pytest.approx(given[key], rel=0.01)
 

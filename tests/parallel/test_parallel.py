@@ -4,7 +4,6 @@ Runs serially and under ``mpirun -n 2``; every test reaches the same collectives
 rank.  On one rank "the last rank" is rank 0 itself.
 """
 
-import numpy as np
 import pytest
 from petsc4py import PETSc
 
@@ -12,7 +11,6 @@ from parefg.errors import InputError, SolverError
 from parefg.parallel import (
     call_on_root,
     default_options,
-    gather_rows,
     raise_everywhere,
     raise_unless_everywhere,
     same_everywhere,
@@ -103,19 +101,6 @@ def test_wait_for_all_returns_when_every_rank_arrives(comm):
     wait_for_all(comm, patience=None, abort_code=1)
     wait_for_all(comm, patience=30.0, abort_code=1)
     assert comm.allreduce(1) == comm.size
-
-
-def test_gather_rows_puts_every_rank_s_rows_in_the_global_order(comm):
-    """Rank r holds the rows r, r + size, r + 2 size, ... in reverse; values are 10 row."""
-    n_rows = 7
-    rows = np.arange(comm.rank, n_rows, comm.size)[::-1]
-    values = np.stack([10.0 * rows, -10.0 * rows], axis=1)  # (n_local, 2)
-    gathered = gather_rows(comm, rows, values, n_rows)
-    if comm.rank != 0:
-        assert gathered is None
-        return
-    expected = np.stack([10.0 * np.arange(n_rows), -10.0 * np.arange(n_rows)], axis=1)
-    np.testing.assert_array_equal(gathered, expected)
 
 
 def test_defaults_apply_only_where_no_option_was_given_and_leave_no_trace(comm):

@@ -493,8 +493,8 @@ def test_valid_scenes_load(scene_dir):
         tally.tried += 1
         scene = timed(load_scene, str(write_scene(scene_dir, doc)))
         assert isinstance(scene, Scene), f"{toml_document(doc)}\n-> {scene}"
-        assert scene.n_steps == round(doc["time"]["T"] / doc["time"]["dt"])
-        assert scene.h == doc["discretization"]["h"]
+        assert scene.time.n_steps == round(doc["time"]["T"] / doc["time"]["dt"])
+        assert scene.discretization.h == doc["discretization"]["h"]
         assert set(scene.boundaries) == set(doc["boundary"])
         tally.accepted += 1
 
@@ -583,8 +583,20 @@ def test_mutated_scenes_and_overrides(scene_dir):
         result = timed(load_scene, str(write_scene(scene_dir, doc)), overrides)
         if isinstance(result, Scene):
             tally.accepted += 1
-            numbers = [result.h, result.E, result.nu, result.lam, result.mu, result.rho, result.T]
-            numbers += [result.dt, result.alpha_dirichlet, result.alpha_contact]
+            numbers = [
+                result.discretization.h,
+                result.material.E,
+                result.material.nu,
+                result.material.lam,
+                result.material.mu,
+                result.material.rho,
+                result.time.T,
+            ]
+            numbers += [
+                result.time.dt,
+                result.penalty.alpha_dirichlet,
+                result.penalty.alpha_contact,
+            ]
             assert np.all(np.isfinite(numbers)), numbers
             return
         assert_one_line(result, "scene fuzz: ")

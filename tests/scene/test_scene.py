@@ -43,16 +43,24 @@ def test_builtin_scenes_are_listed_with_descriptions():
 
 def test_square_scene_values(square):
     assert (square.name, square.part_names) == ("square", ["bottom", "right", "top", "left"])
-    assert (square.h, square.degree, square.dt, square.T, square.n_steps) == (
+    assert (
+        square.discretization.h,
+        square.discretization.degree,
+        square.time.dt,
+        square.time.T,
+        square.time.n_steps,
+    ) == (
         0.0625,
         2,
         0.05,
         1,
         20,
     )
-    assert (square.scheme, square.beta, square.gamma) == ("newmark", 0.5, 0.5)
-    assert (square.E, square.nu, square.rho) == (1.0, 0.3, 1.0)
-    assert square.lam == pytest.approx(LAM, rel=1e-15) and square.mu == pytest.approx(MU, rel=1e-15)
+    assert (square.time.scheme, square.time.beta, square.time.gamma) == ("newmark", 0.5, 0.5)
+    assert (square.material.E, square.material.nu, square.material.rho) == (1.0, 0.3, 1.0)
+    assert square.material.lam == pytest.approx(
+        LAM, rel=1e-15
+    ) and square.material.mu == pytest.approx(MU, rel=1e-15)
     kinds = {name: bc.kind for name, bc in square.boundaries.items()}
     assert kinds == {"bottom": "contact", "top": "dirichlet", "left": "neumann", "right": "neumann"}
     assert not square.boundaries["bottom"].friction_is_zero
@@ -94,20 +102,35 @@ def test_effective_params_contain_defaults(square):
 def test_empty_scene_is_all_defaults(tmp_path):
     scene = load_scene(write(tmp_path, "# nothing\n", "empty.toml"))
     assert scene.name == "empty" and scene.source_dir == tmp_path.resolve()
-    assert (scene.h, scene.degree, scene.support, scene.quadrature) == (0.1, 1, 2.0, 3)
-    assert (scene.weight, scene.cells, scene.scheme, scene.n_steps) == (
+    assert (
+        scene.discretization.h,
+        scene.discretization.degree,
+        scene.discretization.support,
+        scene.discretization.quadrature,
+    ) == (0.1, 1, 2.0, 3)
+    assert (
+        scene.discretization.weight,
+        scene.discretization.cells,
+        scene.time.scheme,
+        scene.time.n_steps,
+    ) == (
         "cubic",
         "quad",
         "newmark",
         10,
     )
-    assert scene.alpha_dirichlet == scene.alpha_contact == scene.alpha_friction == 1e5  # 1e4 E/h
-    assert scene.boundaries == {} and scene.exact is None and scene.solver_options == {}
+    assert (
+        scene.penalty.alpha_dirichlet
+        == scene.penalty.alpha_contact
+        == scene.penalty.alpha_friction
+        == 1e5
+    )  # 1e4 E/h
+    assert scene.boundaries == {} and scene.exact is None and scene.solver.options == {}
     assert scene.params["initial"] == {"u": [0, 0], "v": [0, 0]}
     assert scene.params["loads"] == {"f": [0, 0]}
     x = np.linspace(0, 1, 5)
-    np.testing.assert_array_equal(scene.body_force(x, x, 0.5), np.zeros((2, 5)))
-    np.testing.assert_array_equal(scene.initial_v(x, x), np.zeros((2, 5)))
+    np.testing.assert_array_equal(scene.loads.f(x, x, 0.5), np.zeros((2, 5)))
+    np.testing.assert_array_equal(scene.initial.v(x, x), np.zeros((2, 5)))
 
 
 def toml_text(params: dict) -> str:
@@ -147,22 +170,24 @@ def test_overrides_change_values():
             "output.every=2",
         ],
     )
-    assert scene.h == 0.05 and scene.params["discretization"]["h"] == 0.05
-    assert scene.alpha_contact == pytest.approx(1e4 / 0.05, rel=1e-15)  # default follows h
-    assert scene.n_steps == 10 and scene.output_every == 2
+    assert scene.discretization.h == 0.05 and scene.params["discretization"]["h"] == 0.05
+    assert scene.penalty.alpha_contact == pytest.approx(1e4 / 0.05, rel=1e-15)  # default follows h
+    assert scene.time.n_steps == 10 and scene.output.every == 2
     bottom = scene.boundaries["bottom"]
     assert bottom.friction_is_zero
     np.testing.assert_allclose(bottom.gap(np.array([0.5, 1.0]), np.zeros(2)), [0.05, 0.1])
     expected = {"type": "contact", "gap": "0.1*x", "friction": 0, "friction_law": "tresca"}
     assert scene.params["boundary"]["bottom"] == expected
     # true is a bare flag (PETSc reads "-snes_monitor true" as a viewer named "true")
-    assert scene.solver_options == {"ksp_type": "cg", "snes_monitor": "", "ksp_rtol": "1e-08"}
+    assert scene.solver.options == {"ksp_type": "cg", "snes_monitor": "", "ksp_rtol": "1e-08"}
 
 
 def test_lame_parameters(tmp_path):
     scene = load_scene(write(tmp_path, "[material]\nlam = 1.0\nmu = 1\nrho = 2\n"))
-    assert (scene.lam, scene.mu, scene.rho) == (1.0, 1.0, 2.0)
-    assert scene.E == pytest.approx(2.5, rel=1e-15) and scene.nu == pytest.approx(0.25, rel=1e-15)
+    assert (scene.material.lam, scene.material.mu, scene.material.rho) == (1.0, 1.0, 2.0)
+    assert scene.material.E == pytest.approx(2.5, rel=1e-15) and scene.material.nu == pytest.approx(
+        0.25, rel=1e-15
+    )
     assert scene.params["material"] == {"mu": 1.0, "lam": 1.0, "rho": 2.0}
 
 
@@ -204,7 +229,7 @@ def test_square_body_force_by_hand(square, t):
         -LAM * np.exp(x) + MU * ((1 + x) * np.exp(y) - np.exp(x))
     )
     f2 = -np.cos(t) * y * np.exp(x) - c * (MU * (np.exp(y) - y * np.exp(x)) + LAM * np.exp(y))
-    np.testing.assert_allclose(square.body_force(x, y, t), [f1, f2], rtol=1e-12)
+    np.testing.assert_allclose(square.loads.f(x, y, t), [f1, f2], rtol=1e-12)
 
 
 def test_square_boundary_data_by_hand(square):
@@ -244,9 +269,9 @@ def test_derived_loads_and_initial_state(tmp_path, scheme):
     # sigma_11 = (lam + 2 mu) 2 t^2 x + lam x, sigma_12 = mu (sin t + y), sigma_22 = lam (2 t^2 x
     # + x) + 2 mu x, so div sigma = ((lam + 2 mu) 2 t^2 + lam + mu, 0)
     f1 = inertia - ((LAM + 2 * MU) * 2 * t**2 + LAM + MU)
-    np.testing.assert_allclose(scene.body_force(x, y, t), [f1, 0 * x], rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(scene.initial_u(x, y), [0 * x, x * y], atol=1e-15)
-    np.testing.assert_allclose(scene.initial_v(x, y), [y, 0 * x], atol=1e-15)
+    np.testing.assert_allclose(scene.loads.f(x, y, t), [f1, 0 * x], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(scene.initial.u(x, y), [0 * x, x * y], atol=1e-15)
+    np.testing.assert_allclose(scene.initial.v(x, y), [y, 0 * x], atol=1e-15)
     np.testing.assert_allclose(scene.exact.v(x, y, t), [2 * t * x**2 + np.cos(t) * y, 0 * x])
 
 
@@ -314,7 +339,7 @@ def test_moderate_exact_solution_is_derived():
     """Well inside the budget: a product of 3 sines and 3 exponentials in both components."""
     u = "*".join(f"sin({k}*x + t)*exp(-{k}*y)" for k in range(1, 4))
     scene = load_scene("square", [f"exact.u=['{u}', '{u}']"])
-    assert np.all(np.isfinite(scene.body_force(*POINTS, 0.5)))
+    assert np.all(np.isfinite(scene.loads.f(*POINTS, 0.5)))
 
 
 # (overrides on the square scene, text the one-line message must contain)
@@ -510,7 +535,7 @@ def test_signs_are_checked_on_the_contact_part(tmp_path, domain, part, key, acce
 )
 def test_unconditionally_stable_newmark_and_static_are_accepted(overrides):
     scene = load_scene("square", overrides)
-    assert not scene.dynamic or 2 * scene.beta >= scene.gamma
+    assert not scene.time.dynamic or 2 * scene.time.beta >= scene.time.gamma
 
 
 def test_huge_scene_file_is_refused_before_reading(tmp_path):

@@ -26,10 +26,10 @@ def _penalty(n: int) -> str:
 
 
 def test_the_method_is_a_scene_key_from_the_registry():
-    assert load_scene("square").solver_method == "direct"
+    assert load_scene("square").solver.method == "direct"
     scene = load_scene("square", ["solver.method=iterative", "solver.ksp_rtol=1e-9"])
-    assert scene.solver_method == "iterative"
-    assert scene.solver_options == {"ksp_rtol": "1e-09"}  # the method is no PETSc option
+    assert scene.solver.method == "iterative"
+    assert scene.solver.options == {"ksp_rtol": "1e-09"}  # the method is no PETSc option
     assert scene.params["solver"]["method"] == "iterative"  # written back
     with pytest.raises(InputError, match="solver.method = 'gauss': must be one of 'direct'"):
         load_scene("square", ["solver.method=gauss"])
@@ -38,9 +38,9 @@ def test_the_method_is_a_scene_key_from_the_registry():
 def _run(overrides):
     sim = prepare(MPI.COMM_WORLD, "square", overrides)
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
-    return sim, sim.errors(state.u, sim.scene.T)
+    return sim, sim.errors(state.u, sim.scene.time.T)
 
 
 @pytest.mark.parametrize(

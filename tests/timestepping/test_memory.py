@@ -56,7 +56,7 @@ def test_history_keeps_only_the_last_row_when_asked():
     sim = prepare(comm, "square", TINY[:-1] + ["time.T=0.01"], keep_history=False)
     scene = sim.scene
     state = sim.start()
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, scene.time.n_steps + 1):
         state = sim.step(state, n)
-    assert len(sim.history) == 1 and sim.history[0]["time"] == pytest.approx(scene.T)
+    assert len(sim.history) == 1 and sim.history[0]["time"] == pytest.approx(scene.time.T)
     assert sim.max_newton_per_step >= 1

@@ -67,9 +67,9 @@ def _record_residuals(sim, rtol: float):
 
 def _run(sim):
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
-    return sim.errors(state.u, sim.scene.T)
+    return sim.errors(state.u, sim.scene.time.T)
 
 
 @pytest.fixture(scope="module")
@@ -103,7 +103,7 @@ def test_iterative_solve_matches_the_direct_solver_or_fails(
         assert solver != "jacobi-rtol-1e-1"
         return
     residuals = np.array(log)  # (n_steps, 2): |F|, tolerance
-    assert len(residuals) == sim.scene.n_steps
+    assert len(residuals) == sim.scene.time.n_steps
     assert np.all(residuals[:, 0] <= residuals[:, 1]), residuals
     for key in ("l2_rel", "h1_rel"):
         reference = direct_errors[case][key]
@@ -116,7 +116,7 @@ def test_direct_solver_steps_meet_the_tolerance():
     log = _record_residuals(sim, 1e-10)
     _run(sim)
     residuals = np.array(log)
-    assert len(residuals) == sim.scene.n_steps
+    assert len(residuals) == sim.scene.time.n_steps
     assert np.all(residuals[:, 0] <= residuals[:, 1]), residuals
 
 
@@ -153,7 +153,7 @@ def test_other_line_search_types_give_the_basic_result(petsc_options, direct_err
 def _impact_displacement():
     sim = prepare(COMM, "impact", ["time.T=0.4"])
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
     return state.u.copy()
 

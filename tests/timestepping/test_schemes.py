@@ -80,7 +80,7 @@ def run(source: str, overrides=()) -> tuple[Simulation, State]:
     """Run a scene to T in-process; return the simulation and the final state.  Collective."""
     sim = prepare(COMM, source, overrides)
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
     return sim, state
 
@@ -104,7 +104,7 @@ def test_parameters_follow_chung_hulbert(tmp_path, rho_inf, expected):
     got = (p["alpha_m"], p["alpha_f"], p["beta"], p["gamma"])
     assert got == pytest.approx(expected, abs=1e-15)
     scene = load_scene("square", [GENERALIZED_ALPHA, f"time.rho_inf={rho_inf}"])
-    assert (scene.beta, scene.gamma) == pytest.approx(expected[2:], abs=1e-15)
+    assert (scene.time.beta, scene.time.gamma) == pytest.approx(expected[2:], abs=1e-15)
     assert scene.params["time"]["rho_inf"] == rho_inf
 
 
@@ -206,10 +206,10 @@ def test_mode_amplification_matches_the_scalar_recurrence(tmp_path, rho_inf):
     stiffness = (owned["stiffness"] + owned["dirichlet"]).toarray()
     omega2, modes = scipy.linalg.eigh(stiffness, owned["mass"].toarray())
     for index, (low, high) in ((0, (0.0, 2.0)), (-1, (500.0, np.inf))):
-        omega_k = np.sqrt(omega2[index]) * scene.dt
+        omega_k = np.sqrt(omega2[index]) * scene.time.dt
         assert low < omega_k < high
         expected = amplification(rho_inf, omega_k)
-        measured = measured_amplification(sim, modes[:, index], scene.dt)
+        measured = measured_amplification(sim, modes[:, index], scene.time.dt)
         assert np.max(np.abs(measured - expected)) <= 1e-8 * np.max(np.abs(expected))
         radius = np.max(np.abs(np.linalg.eigvals(measured)))
         if index == -1:

@@ -45,9 +45,9 @@ def gamg_options():
 
 def _errors(sim):
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
-    return sim.errors(state.u, sim.scene.T)
+    return sim.errors(state.u, sim.scene.time.T)
 
 
 def test_cg_gamg_reproduces_the_direct_solver(gamg_options):

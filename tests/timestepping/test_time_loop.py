@@ -51,7 +51,7 @@ def test_default_output_is_a_series_of_about_50_frames_from_t0(comm, run_dir):
 @pytest.mark.parametrize("n_steps, every", [(7, 1), (130, 3), (10**6, 20000)])
 def test_default_every_gives_about_50_frames(n_steps, every):
     scene = load_scene("square", [*TINY, "time.T=1", f"time.dt={1 / n_steps!r}"])
-    assert scene.n_steps == n_steps and scene.output_every == every
+    assert scene.time.n_steps == n_steps and scene.output.every == every
 
 
 def test_every_zero_writes_the_final_step_only(comm, run_dir):

@@ -28,14 +28,14 @@ def run(scene_name: str, overrides=()) -> tuple[Simulation, object]:
     """Run a scene to T in-process; return the simulation and the final state.  Collective."""
     sim = prepare(COMM, scene_name, overrides)
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
     return sim, state
 
 
 def errors(scene_name: str, overrides) -> dict[str, float]:
     sim, state = run(scene_name, overrides)
-    return sim.errors(state.u, sim.scene.T)
+    return sim.errors(state.u, sim.scene.time.T)
 
 
 @pytest.mark.parametrize("scene_name", ["square", "z"])

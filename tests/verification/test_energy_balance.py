@@ -24,7 +24,7 @@ def balance_drift(dt: float) -> tuple[float, float]:
     comm = MPI.COMM_WORLD
     sim = prepare(comm, "impact", ["time.beta=0.25", f"time.dt={dt}", "time.T=0.5"])
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
     rows = sim.history
     balance = np.array([sum(r[c] for c in COLUMNS) - r["external_work"] for r in rows])

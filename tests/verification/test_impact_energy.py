@@ -44,7 +44,7 @@ def run(scene_name: str, overrides: list[str]):
     disc = build_discretization(comm, scene)
     sim = Simulation(comm, scene, disc)
     state = sim.start()
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, scene.time.n_steps + 1):
         state = sim.step(state, n)
     return sim, disc, state
 
@@ -119,7 +119,7 @@ def test_generalized_alpha_impact_stays_in_the_energy_band():
     """
     sim, _, _ = run("impact", ["time.scheme=generalized-alpha", "penalty.alpha_contact=1e7"])
     energy = balance(sim.history) / balance(sim.history)[0]
-    first_rebound = energy[: round(0.2 / sim.scene.dt) + 1]
+    first_rebound = energy[: round(0.2 / sim.scene.time.dt) + 1]
     assert 0.98 <= first_rebound.min(), first_rebound.min()
     assert 0.93 <= energy.min() <= 0.99 and energy.max() <= 1.02, (energy.min(), energy.max())
 
@@ -168,7 +168,7 @@ def test_restart_within_an_impact_at_beta_half_matches(tmp_path):
     again = Simulation(comm, scene, disc)
     again.start()
     state = again.restore(read_checkpoint(comm, path, again))
-    for n in range(split + 1, scene.n_steps + 1):
+    for n in range(split + 1, scene.time.n_steps + 1):
         state = again.step(state, n)
     difference = state.u.copy()
     difference.axpy(-1.0, reference.u)

@@ -54,7 +54,7 @@ def test_moving_dirichlet_data_keep_the_energy_balance(tmp_path, method):
     path.write_text(MOVING_CLAMP.format(method=method))
     sim = prepare(COMM, str(path))
     state = sim.start()
-    for n in range(1, sim.scene.n_steps + 1):
+    for n in range(1, sim.scene.time.n_steps + 1):
         state = sim.step(state, n)
     rows = sim.history
     stored = np.array(

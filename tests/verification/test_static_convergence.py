@@ -57,9 +57,9 @@ def static_errors(comm, scene_path: str, overrides: list[str]) -> dict[str, floa
     """Relative L2 / H1-seminorm errors of the one-step static solution.  Collective."""
     simulation = prepare(comm, scene_path, overrides)
     scene = simulation.scene
-    assert scene.n_steps == 1 and scene.scheme == "static"
+    assert scene.time.n_steps == 1 and scene.time.scheme == "static"
     state = simulation.step(simulation.start(), 1)
-    return simulation.errors(state.u, scene.T)
+    return simulation.errors(state.u, scene.time.T)
 
 
 def fitted_rates(comm, scene_path: str, sizes, overrides_of_h) -> tuple[float, float, list]:

@@ -64,9 +64,9 @@ def errors_at_T(jitter: float) -> dict:
     sim = prepare(comm, "square", [*COARSE, "time.T=0.5", f"discretization.jitter={jitter}"])
     scene = sim.scene
     state = sim.start()
-    for n in range(1, scene.n_steps + 1):
+    for n in range(1, scene.time.n_steps + 1):
         state = sim.step(state, n)
-    return sim.errors(state.u, scene.T)
+    return sim.errors(state.u, scene.time.T)
 
 
 def test_jitter_40_percent_stays_within_3x_of_the_plain_grid():

@@ -1,0 +1,150 @@
+"""The boundary operators of a discretization: boundary point sets, Dirichlet parts and D, Gamma_C.
+
+A mixin of the builder of :mod:`parefg.discretization.operators`: the Gauss points of each
+boundary part, the Dirichlet operator D of each part's method (penalty or Nitsche,
+:mod:`parefg.discretization.dirichlet`) with its beta, and the Gamma_C point set with the
+sparsity pattern of the contact coupling.  Every method is collective.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from parefg.boundary import BoundaryKind
+from parefg.discretization.assembly import Coupling
+from parefg.discretization.dirichlet import DIRICHLET_METHODS, DirichletPart, local_operators
+from parefg.discretization.mls import MLS, ShapeValues
+from parefg.discretization.point_set import PointSet
+from parefg.discretization.quadrature import Quadrature, segment_quadrature
+from parefg.discretization.trace_inverse import nitsche_beta
+from parefg.geometry.cloud import NodeCloud
+from parefg.geometry.partition import Partition
+from parefg.parallel import petsc_matrix
+from parefg.profiling import phase
+
+
+class BoundaryOperators:
+    """Boundary point sets and D of the builder (which provides the attributes below)."""
+
+    comm: Any
+    scene: Any
+    cloud: NodeCloud
+    partition: Partition
+    mls: MLS
+    timings: dict[str, float]
+    n_nodes: int
+    n_dofs_local: int
+    n_contact: int
+
+    def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
+        raise NotImplementedError  # the builder's: MLS at this rank's points
+
+    def _point_set(
+        self, quadrature, shape, gradients=False, keep_gradients=False, **extra
+    ) -> PointSet:
+        raise NotImplementedError  # the builder's: the PointSet of a quadrature
+
+    def _boundary_quadrature(self, part_ids: list[int]) -> tuple[Quadrature, np.ndarray]:
+        """This rank's Gauss points on segments of the given parts, and their global rows."""
+        cloud, part = self.cloud, self.partition
+        on_parts = np.isin(cloud.segment_part, part_ids)
+        # global, rank-independent numbering of the selected segments (for output rows)
+        global_index = np.cumsum(on_parts) - 1
+        mine = np.flatnonzero(on_parts & (part.segment_owner == self.comm.rank))
+        quadrature = segment_quadrature(
+            cloud.coords, cloud.segments, self.scene.discretization.quadrature, segment_ids=mine
+        )
+        n_gauss = self.scene.discretization.quadrature
+        rows = global_index[quadrature.cell] * n_gauss + np.arange(len(quadrature.cell)) % n_gauss
+        return quadrature, rows
+
+    def _boundaries(self):
+        """Point sets of every boundary condition; D, its parts and the Gamma_C pattern."""
+        scene, cloud, n = self.scene, self.cloud, self.n_nodes
+        boundary, parts, contact_parts = {}, {}, []
+        dirichlet_local = sp.csr_matrix((2 * n, 2 * n))
+        for name, bc in scene.boundaries.items():
+            part_id = cloud.part_names.index(name)
+            if bc.kind == BoundaryKind.CONTACT:
+                contact_parts.append(part_id)
+                continue
+            quadrature, _ = self._boundary_quadrature([part_id])
+            method = DIRICHLET_METHODS[bc.method] if bc.kind == BoundaryKind.DIRICHLET else None
+            consistent = method is not None and method.consistent
+            shape = self._shape(quadrature.points, gradients=consistent)
+            with phase(self.timings, "assembly"):
+                boundary[name] = self._point_set(quadrature, shape)
+            if method is not None:
+                parts[name], local = self._dirichlet_part(method, bc, quadrature, shape)
+                dirichlet_local = dirichlet_local + local
+        contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
+        if contact_parts:
+            quadrature, rows = self._boundary_quadrature(contact_parts)
+            on_contact = np.isin(cloud.segment_part, contact_parts)  # every rank's segments
+            self.n_contact = (
+                int(np.count_nonzero(on_contact)) * self.scene.discretization.quadrature
+            )
+            shape = self._shape(quadrature.points, gradients=False)
+            with phase(self.timings, "assembly"):
+                part_of_point = cloud.segment_part[quadrature.cell]
+                contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows)
+                coupling = Coupling.of(shape, n, quadrature.cell)
+                pattern = coupling.interleaved(np.zeros((len(coupling.indices), 2, 2)))
+        return boundary, parts, contact, dirichlet_local, pattern
+
+    def _dirichlet_part(self, method, bc, quadrature: Quadrature, shape: ShapeValues):
+        """One Dirichlet part by ``method``, and its local contributions to D.
+
+        beta is alpha_D for the penalty, the part's safety times the coercivity bound of
+        each segment (:func:`~parefg.discretization.trace_inverse.nitsche_beta`) for Nitsche.
+        """
+        scene, n = self.scene, self.n_nodes
+        if method.consistent:
+            with phase(self.timings, "assembly"):  # the trace-inverse estimate
+                per_segment = bc.safety * nitsche_beta(
+                    self.mls,
+                    self.cloud,
+                    self._nitsche_segments(),
+                    np.unique(quadrature.cell),
+                    scene.discretization.quadrature,
+                    scene.material.lam,
+                    scene.material.mu,
+                )
+            beta = np.repeat(
+                per_segment, scene.discretization.quadrature
+            )  # points are grouped by segment
+        else:
+            beta = np.full(len(quadrature.weights), scene.penalty.alpha_dirichlet)
+        with phase(self.timings, "assembly"):
+            assert quadrature.normals is not None
+            local, load, traction = local_operators(
+                method,
+                shape,
+                quadrature.weights,
+                quadrature.normals,
+                beta,
+                n,
+                scene.material.lam,
+                scene.material.mu,
+            )
+            part = DirichletPart(
+                method=method.name,
+                weights=quadrature.weights,
+                beta=beta,
+                load=petsc_matrix(self.comm, load, self.n_dofs_local, 2 * n),
+                traction=None
+                if traction is None
+                else petsc_matrix(self.comm, traction, self.n_dofs_local, 2 * n),
+            )
+        return part, local
+
+    def _nitsche_segments(self) -> np.ndarray:
+        """Every segment (all ranks) of a Dirichlet part imposed by a consistent method."""
+        cloud, names = self.cloud, []
+        for name, bc in self.scene.boundaries.items():
+            if bc.kind == BoundaryKind.DIRICHLET and DIRICHLET_METHODS[bc.method].consistent:
+                names.append(cloud.part_names.index(name))
+        return np.flatnonzero(np.isin(cloud.segment_part, names))

@@ -1,0 +1,100 @@
+"""This rank's points of one kind (quadrature, Gamma_C, nodes) and the operator giving u_h there.
+
+A :class:`PointSet` holds this rank's points with the scalar PETSc matrix
+S[q, I] = phi_I(x_q) (:func:`point_operator`), which evaluates u_h at the points and
+integrates point forces back onto the nodes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from petsc4py import PETSc
+
+from parefg.discretization.point_gradients import PointGradients
+
+
+@dataclass
+class PointSet:
+    """This rank's points of one kind, with the operator evaluating u_h there.
+
+    ``values`` is the scalar (n_points x n_nodes) PETSc matrix S[q, I] = phi_I(x_q); it
+    acts on each displacement component (every other entry of the interleaved DOFs), so
+    ``evaluate`` gives (u_x, u_y) at each point and ``integrate`` applies S^T to point
+    forces: the interleaved operator kron(S, I_2) without storing it twice.  Gradients
+    come from ``gradients`` (MLS re-evaluated at the points, block by block: only error
+    norms and nodal stresses need them); None for point sets without gradients.
+    """
+
+    points: np.ndarray  # (n_points, 2)
+    weights: np.ndarray  # (n_points,) quadrature weights (ones for nodes)
+    normals: np.ndarray | None  # (n_points, 2) outward unit normals on boundaries
+    values: PETSc.Mat
+    part: np.ndarray | None = None  # (n_points,) boundary part index of each point
+    rows: np.ndarray | None = None  # (n_points,) global, rank-independent row of each point
+    gradients: PointGradients | None = field(default=None, repr=False)
+    # work vectors at the points and the nodes, created on first use and reused (no PETSc
+    # object per call)
+    _point_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
+    _node_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
+
+    def _work(self) -> tuple[PETSc.Vec, PETSc.Vec]:
+        if self._point_vec is None:
+            self._point_vec = self.values.createVecLeft()
+            self._node_vec = self.values.createVecRight()
+        assert self._node_vec is not None
+        return self._point_vec, self._node_vec
+
+    def evaluate(self, u: PETSc.Vec) -> np.ndarray:
+        """u_h at the points, (n_points, 2).  Collective."""
+        point_vec, node_vec = self._work()
+        dofs = u.getArray(readonly=True)
+        out = np.empty((len(self.points), 2))
+        for component in range(2):
+            node_vec.setArray(dofs[component::2])
+            self.values.mult(node_vec, point_vec)
+            out[:, component] = point_vec.getArray(readonly=True)
+        return out
+
+    def evaluate_gradient(self, u: PETSc.Vec) -> np.ndarray:
+        """grad u_h at the points, (n_points, 2, 2) with [q, i, j] = d u_i / d x_j.  Collective."""
+        if self.gradients is None:
+            raise ValueError("this point set has no gradients")
+        return self.gradients.evaluate(self.values.getComm().tompi4py(), u)
+
+    def integrate(self, density: np.ndarray, out: PETSc.Vec) -> None:
+        """out = int density . phi_I = S^T (w density) per component; density (n_points, 2).
+
+        Collective.
+        """
+        point_vec, node_vec = self._work()
+        dofs = np.empty(2 * node_vec.getLocalSize())
+        for component in range(2):
+            point_vec.setArray(density[:, component] * self.weights)
+            self.values.multTranspose(point_vec, node_vec)
+            dofs[component::2] = node_vec.getArray(readonly=True)
+        out.setArray(dofs)
+
+
+def point_operator(comm, csr, n_nodes_local: int, n_nodes: int) -> PETSc.Mat:
+    """PETSc matrix of a scalar point operator from its CSR arrays (rows: this rank's points).
+
+    Collective.  Without inodes: the rows of neighbouring points may share a pattern, and
+    PETSc's inode product adds such rows' terms in pairs; the plain product sums each row
+    in column order, as the interleaved operator (whose rows never share a pattern) did.
+    """
+    indptr, indices, data = csr
+    matrix = PETSc.Mat().createAIJ(
+        size=((len(indptr) - 1, PETSc.DETERMINE), (n_nodes_local, n_nodes)),
+        csr=(
+            indptr.astype(PETSc.IntType, copy=False),
+            indices.astype(PETSc.IntType, copy=False),
+            data.astype(PETSc.ScalarType, copy=False),
+        ),
+        comm=comm,
+    )
+    matrix.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+    matrix.setOption(PETSc.Mat.Option.USE_INODES, False)
+    matrix.assemble()  # drops the inode routines the first assembly chose
+    return matrix
