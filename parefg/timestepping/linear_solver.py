@@ -52,6 +52,14 @@ class SolverMethod:
 # is on |b - A u|.  The preconditioner is rebuilt only when the step matrix changes (the
 # contact active set); reusing GAMG's interpolation then (measured at s = 3.2: square,
 # h = 1/16, first step) leaves CG with DIVERGED_INDEFINITE_PC after 3 iterations.
+# The counts are bounded in h for supports up to s ~ 2.4 at m = 2 (static 23, 25, 25 at
+# h = 1/16, 1/32, 1/64) and grow with 1/h for wider ones (s = 3.2: 448, 803, 1035): a wide
+# MLS support makes oscillating nodal parameters give almost no field, so the smallest
+# eigenvalues of the Jacobi-scaled matrix (1e-6 of the largest at s = 3.2, about 10 % of
+# them below 1e-3) belong to oscillating vectors, which neither a smoother (it damps the
+# large eigenvalues) nor a coarse space (smooth) reaches.  No GAMG or BoomerAMG option
+# changed that (threshold 0 ... 0.2, square graph, 0-2 prolongator smoothings, coarse
+# limit, levels, Chebyshev with 2-8 steps or SOR, a filtered or s = 2.2 Pmat).
 _AMG = {
     "ksp_type": "cg",
     "ksp_norm_type": "unpreconditioned",
