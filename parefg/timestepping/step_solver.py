@@ -34,6 +34,7 @@ the tolerance, ends the step as a failure.
 from __future__ import annotations
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
@@ -72,6 +73,9 @@ class ContactStepSolver:
         # GAMG needs the rigid-body modes on the matrix it is built from
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
         self.b = a_const.createVecRight()
+        # A_const x of the last x it was formed for: the step scale's A u_0 is the first
+        # residual's, the line search's A x - b at x is the residual's just computed at x
+        self._products = ReusedProduct(comm, a_const)
         # work vectors of the line search, the residual check and the energy, allocated once
         self._direction, self._product, self._smooth, self._check = (
             a_const.createVecRight() for _ in range(4)
@@ -117,7 +121,7 @@ class ContactStepSolver:
 
     def _smooth_residual(self, u: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
         """out = A_const u - b, the gradient of J_n without contact.  Collective."""
-        self.a_const.mult(u, out)
+        self._products.mult(u, out)
         out.axpy(-1.0, self.b)
         return out
 
@@ -129,7 +133,9 @@ class ContactStepSolver:
         return residual.norm(), self.law.active_set(un, ut)
 
     def _residual(self, snes, u: PETSc.Vec, residual: PETSc.Vec) -> None:
-        self._evaluate(u, residual)
+        """SNES's function: residual = F(u) (its norm and the active set are not needed)."""
+        self._smooth_residual(u, residual)
+        self.law.add_residual(residual, *self.law.kinematics(u))
 
     def _jacobian_callback(self, snes, u, jacobian, preconditioner) -> None:
         un, ut = self.law.kinematics(u)
@@ -206,12 +212,16 @@ class ContactStepSolver:
     def _converged(self, snes, it, norms) -> int:
         """|F(x)| <= tolerance on a settled active set; shortcuts only for exact solves.
 
-        The residual is evaluated here at the iterate, not taken from the line search.
+        |F(x)| is the norm of SNES's function vector, which newtonls keeps at the iterate
+        after every line search (the next direction solves with it); the active set is
+        taken here at the iterate.
         """
         xnorm, ynorm, _ = norms
         if self._failure is not None:
             return Reason.DIVERGED_LINE_SEARCH
-        fnorm, active = self._evaluate(snes.getSolution(), self._check)
+        # newtonls holds F(x) in its function vector (the next Newton step solves with it)
+        fnorm = snes.getFunction()[0].norm()
+        active = self.law.active_set(*self.law.kinematics(snes.getSolution()))
         self.residual_norm = fnorm
         if not np.isfinite(fnorm):
             return Reason.DIVERGED_FNORM_NAN
@@ -243,6 +253,7 @@ class ContactStepSolver:
         b.copy(self.b)
         rtol, atol, _, _ = self.snes.getTolerances()
         self.tolerance = max(atol, rtol * step_scale(self.a_const, b, u, self._check))
+        self._products.remember(u, self._check)  # A u_0: the first residual's product
         if self.scaled_tolerance:
             set_ksp_tolerance(self.snes.getKSP(), self.tolerance)
         self._failure = None
@@ -263,6 +274,40 @@ class ContactStepSolver:
         if reason == Reason.DIVERGED_LINEAR_SOLVE:
             detail = f", {ksp_failure(self.snes.getKSP())}"
         return f"SNES reason {reason_name(Reason, reason)}{detail} {counts}"
+
+
+class ReusedProduct:
+    """y = A x that reuses the last product when x holds the same values.  Collective.
+
+    A Newton step forms A x at the same x up to three times (the step scale at u_0, the
+    residual, the line search's slope); the saved product is copied instead (the same
+    bits as a new product).  A must not change while the object is used.
+    """
+
+    def __init__(self, comm, matrix: PETSc.Mat):
+        self.comm, self.matrix = comm, matrix
+        self._input, self._output = matrix.createVecRight(), matrix.createVecLeft()
+        self._valid = False  # the same on every rank: set by collective calls only
+
+    def mult(self, x: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = A x (returned).  Collective."""
+        if self._valid and self._holds(x):
+            self._output.copy(out)
+        else:
+            self.matrix.mult(x, out)
+            self.remember(x, out)
+        return out
+
+    def remember(self, x: PETSc.Vec, product: PETSc.Vec) -> None:
+        """Keep ``product`` = A x for a later :meth:`mult` at the same x.  Not collective."""
+        x.copy(self._input)
+        product.copy(self._output)
+        self._valid = True
+
+    def _holds(self, x: PETSc.Vec) -> bool:
+        """x has the values of the saved input on every rank.  Collective (one allreduce)."""
+        same = np.array_equal(x.getArray(readonly=True), self._input.getArray(readonly=True))
+        return same if self.comm.size == 1 else self.comm.allreduce(same, op=MPI.LAND)
 
 
 def _minimize_monotone(derivative, start, tol: float = 1e-13, max_iter: int = 200) -> float:
