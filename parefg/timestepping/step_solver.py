@@ -88,6 +88,9 @@ class ContactStepSolver:
         self._step_active: np.ndarray = np.zeros(0, dtype=bool)
         self._exact_piece = False
         self._step_norm = 0.0  # |update| the pre-check handed to the line search
+        # the pre-check found the full step exact: the line search's trial point x - y
+        # solves the step, and its residual is not evaluated (see _residual)
+        self._solved_by_step = False
         self._failure: str | None = None  # why the running step must fail
         self.snes = self._create_snes(comm)
         self.exact = is_exact(self.snes.getKSP())
@@ -102,7 +105,8 @@ class ContactStepSolver:
         snes.setConvergenceTest(self._converged)
         snes.setTolerances(**DEFAULT_TOLERANCES)
         configure_linear_solver(snes.getKSP())
-        _check_line_search(PETSc.Options())
+        # the line search evaluates F at x - y exactly (basic, undamped): see _residual
+        self._full_trial = _check_line_search(PETSc.Options())
         # the step's options are the unprefixed ones (-snes_rtol, -ksp_type: the README's);
         # petsc4py 3.18 has no SNES.getLineSearch, so the default line search is offered
         # through the options database while this SNES reads it, and removed after
@@ -133,7 +137,16 @@ class ContactStepSolver:
         return residual.norm(), self.law.active_set(un, ut)
 
     def _residual(self, snes, u: PETSc.Vec, residual: PETSc.Vec) -> None:
-        """SNES's function: residual = F(u) (its norm and the active set are not needed)."""
+        """SNES's function: residual = F(u) (its norm and the active set are not needed).
+
+        At the trial point of a full step the pre-check found exact (an exact solve, every
+        point on one affine piece of F: F(x - y) = F(x) - J y = 0 up to round-off), the
+        step is solved and the convergence test accepts it whatever |F| is: F is set to
+        that exact 0 instead of being evaluated (it would cost one product with A_const).
+        """
+        if self._solved_by_step:  # the convergence test accepts the step (and resets this)
+            residual.set(0.0)
+            return
         self._smooth_residual(u, residual)
         self.law.add_residual(residual, *self.law.kinematics(u))
 
@@ -186,6 +199,7 @@ class ContactStepSolver:
             piece, self.law.piece(un + d_nu, ut + d_tau)
         )
         self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
+        self._solved_by_step = self._exact_piece and self._full_trial
         if not self._exact_piece:
             self.a_const.mult(direction, self._product)
             curvature = self._product.dot(direction)
@@ -214,11 +228,16 @@ class ContactStepSolver:
 
         |F(x)| is the norm of SNES's function vector, which newtonls keeps at the iterate
         after every line search (the next direction solves with it); the active set is
-        taken here at the iterate.
+        taken here at the iterate.  A step the pre-check found exact is accepted without
+        either (on one affine piece the active set cannot change).
         """
         xnorm, ynorm, _ = norms
         if self._failure is not None:
             return Reason.DIVERGED_LINE_SEARCH
+        if self._solved_by_step:  # the pre-check's exact full step (see _residual)
+            self._solved_by_step = False
+            self.residual_norm = float("nan")  # not evaluated
+            return Reason.CONVERGED_SNORM_RELATIVE
         # newtonls holds F(x) in its function vector (the next Newton step solves with it)
         fnorm = snes.getFunction()[0].norm()
         active = self.law.active_set(*self.law.kinematics(snes.getSolution()))
@@ -257,6 +276,7 @@ class ContactStepSolver:
         if self.scaled_tolerance:
             set_ksp_tolerance(self.snes.getKSP(), self.tolerance)
         self._failure = None
+        self._solved_by_step = False
         before = self.jacobian_builds
         self.snes.solve(None, u)
         reason = self.snes.getConvergedReason()
@@ -338,11 +358,16 @@ def _minimize_monotone(derivative, start, tol: float = 1e-13, max_iter: int = 20
     return step
 
 
-def _check_line_search(options: PETSc.Options) -> None:
-    """Refuse a -snes_linesearch_type the exact pre-check does not work with.  Not collective."""
+def _check_line_search(options: PETSc.Options) -> bool:
+    """Refuse a -snes_linesearch_type the exact pre-check does not work with.  Not collective.
+
+    Returns whether the line search takes the pre-check's step as it is: "basic" without
+    damping evaluates F at x - y and accepts it.
+    """
     kind = options.getString("snes_linesearch_type", "basic")
     if kind not in LINE_SEARCHES:
         raise InputError(
             f"-snes_linesearch_type {kind}: not supported with the exact line search; "
             f"allowed: {', '.join(LINE_SEARCHES)}"
         )
+    return kind == "basic" and options.getReal("snes_linesearch_damping", 1.0) == 1.0
