@@ -26,9 +26,13 @@ contact, the active set did not change in the last iteration.  rtol, atol and ma
 the SNES tolerances (-snes_rtol, -snes_atol, -snes_max_it; defaults 1e-10, 1e-50, 200).
 Only when the linear solve is exact (KSP ``preonly`` with an LU or Cholesky PC, read after
 setFromOptions) two shortcuts are taken: a full Newton step that stayed on its linear piece
-of the residual solved the step exactly, and an update below stol |u| is at round-off.  A
-Newton direction that is not a descent direction of J_n, where the residual does not meet
-the tolerance, ends the step as a failure.
+of the residual solved the step exactly (with the basic, undamped line search its residual
+is then not evaluated: one product with A_const less), and an update below stol |u| is at
+round-off.  A Newton direction that is not a descent direction of J_n, where the residual
+does not meet the tolerance, ends the step as a failure.
+
+Products with A_const: one per Newton iterate (:class:`ReusedProduct` serves the same x
+to the step scale, the residual and the line search), none at the accepted exact step.
 """
 
 from __future__ import annotations
