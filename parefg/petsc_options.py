@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
+import itertools
 from contextlib import contextmanager
 
 from petsc4py import PETSc
@@ -52,6 +54,7 @@ def scene_options(solver_options: dict[str, str]):
     return default_options("", solver_options)
 
 
+@functools.cache  # the process's libpetsc does not change; reading the maps costs ~20 ms
 def _library():
     """libpetsc as petsc4py loaded it (found in the process's mappings), or None."""
     loaded = []
@@ -60,8 +63,11 @@ def _library():
             loaded = [line.split()[-1] for line in maps if "/libpetsc" in line]
     except OSError:
         pass
-    fallbacks = [ctypes.util.find_library(name) for name in ("petsc_real", "petsc")]
-    for name in [*dict.fromkeys(loaded), *filter(None, fallbacks)]:
+    # find_library runs ldconfig or gcc (0.05-0.2 s measured): only when the maps do not do
+    fallbacks = (ctypes.util.find_library(name) for name in ("petsc_real", "petsc"))
+    for name in itertools.chain(dict.fromkeys(loaded), fallbacks):
+        if name is None:
+            continue
         try:
             library = ctypes.CDLL(name)
         except OSError:

@@ -26,14 +26,19 @@ contact, the active set did not change in the last iteration.  rtol, atol and ma
 the SNES tolerances (-snes_rtol, -snes_atol, -snes_max_it; defaults 1e-10, 1e-50, 200).
 Only when the linear solve is exact (KSP ``preonly`` with an LU or Cholesky PC, read after
 setFromOptions) two shortcuts are taken: a full Newton step that stayed on its linear piece
-of the residual solved the step exactly, and an update below stol |u| is at round-off.  A
-Newton direction that is not a descent direction of J_n, where the residual does not meet
-the tolerance, ends the step as a failure.
+of the residual solved the step exactly (with the basic, undamped line search its residual
+is then not evaluated: one product with A_const less), and an update below stol |u| is at
+round-off.  A Newton direction that is not a descent direction of J_n, where the residual
+does not meet the tolerance, ends the step as a failure.
+
+Products with A_const: one per Newton iterate (:class:`ReusedProduct` serves the same x
+to the step scale, the residual and the line search), none at the accepted exact step.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
@@ -72,6 +77,9 @@ class ContactStepSolver:
         # GAMG needs the rigid-body modes on the matrix it is built from
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
         self.b = a_const.createVecRight()
+        # A_const x of the last x it was formed for: the step scale's A u_0 is the first
+        # residual's, the line search's A x - b at x is the residual's just computed at x
+        self._products = ReusedProduct(comm, a_const)
         # work vectors of the line search, the residual check and the energy, allocated once
         self._direction, self._product, self._smooth, self._check = (
             a_const.createVecRight() for _ in range(4)
@@ -84,6 +92,9 @@ class ContactStepSolver:
         self._step_active: np.ndarray = np.zeros(0, dtype=bool)
         self._exact_piece = False
         self._step_norm = 0.0  # |update| the pre-check handed to the line search
+        # the pre-check found the full step exact: the line search's trial point x - y
+        # solves the step, and its residual is not evaluated (see _residual)
+        self._solved_by_step = False
         self._failure: str | None = None  # why the running step must fail
         self.snes = self._create_snes(comm)
         self.exact = is_exact(self.snes.getKSP())
@@ -98,7 +109,8 @@ class ContactStepSolver:
         snes.setConvergenceTest(self._converged)
         snes.setTolerances(**DEFAULT_TOLERANCES)
         configure_linear_solver(snes.getKSP())
-        _check_line_search(PETSc.Options())
+        # the line search evaluates F at x - y exactly (basic, undamped): see _residual
+        self._full_trial = _check_line_search(PETSc.Options())
         # the step's options are the unprefixed ones (-snes_rtol, -ksp_type: the README's);
         # petsc4py 3.18 has no SNES.getLineSearch, so the default line search is offered
         # through the options database while this SNES reads it, and removed after
@@ -117,7 +129,7 @@ class ContactStepSolver:
 
     def _smooth_residual(self, u: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
         """out = A_const u - b, the gradient of J_n without contact.  Collective."""
-        self.a_const.mult(u, out)
+        self._products.mult(u, out)
         out.axpy(-1.0, self.b)
         return out
 
@@ -129,7 +141,18 @@ class ContactStepSolver:
         return residual.norm(), self.law.active_set(un, ut)
 
     def _residual(self, snes, u: PETSc.Vec, residual: PETSc.Vec) -> None:
-        self._evaluate(u, residual)
+        """SNES's function: residual = F(u) (its norm and the active set are not needed).
+
+        At the trial point of a full step the pre-check found exact (an exact solve, every
+        point on one affine piece of F: F(x - y) = F(x) - J y = 0 up to round-off), the
+        step is solved and the convergence test accepts it whatever |F| is: F is set to
+        that exact 0 instead of being evaluated (it would cost one product with A_const).
+        """
+        if self._solved_by_step:  # the convergence test accepts the step (and resets this)
+            residual.set(0.0)
+            return
+        self._smooth_residual(u, residual)
+        self.law.add_residual(residual, *self.law.kinematics(u))
 
     def _jacobian_callback(self, snes, u, jacobian, preconditioner) -> None:
         un, ut = self.law.kinematics(u)
@@ -180,6 +203,7 @@ class ContactStepSolver:
             piece, self.law.piece(un + d_nu, ut + d_tau)
         )
         self._exact_piece = self.exact and self.comm.allreduce(not same_piece) == 0
+        self._solved_by_step = self._exact_piece and self._full_trial
         if not self._exact_piece:
             self.a_const.mult(direction, self._product)
             curvature = self._product.dot(direction)
@@ -206,12 +230,21 @@ class ContactStepSolver:
     def _converged(self, snes, it, norms) -> int:
         """|F(x)| <= tolerance on a settled active set; shortcuts only for exact solves.
 
-        The residual is evaluated here at the iterate, not taken from the line search.
+        |F(x)| is the norm of SNES's function vector, which newtonls keeps at the iterate
+        after every line search (the next direction solves with it); the active set is
+        taken here at the iterate.  A step the pre-check found exact is accepted without
+        either (on one affine piece the active set cannot change).
         """
         xnorm, ynorm, _ = norms
         if self._failure is not None:
             return Reason.DIVERGED_LINE_SEARCH
-        fnorm, active = self._evaluate(snes.getSolution(), self._check)
+        if self._solved_by_step:  # the pre-check's exact full step (see _residual)
+            self._solved_by_step = False
+            self.residual_norm = float("nan")  # not evaluated
+            return Reason.CONVERGED_SNORM_RELATIVE
+        # newtonls holds F(x) in its function vector (the next Newton step solves with it)
+        fnorm = snes.getFunction()[0].norm()
+        active = self.law.active_set(*self.law.kinematics(snes.getSolution()))
         self.residual_norm = fnorm
         if not np.isfinite(fnorm):
             return Reason.DIVERGED_FNORM_NAN
@@ -243,9 +276,11 @@ class ContactStepSolver:
         b.copy(self.b)
         rtol, atol, _, _ = self.snes.getTolerances()
         self.tolerance = max(atol, rtol * step_scale(self.a_const, b, u, self._check))
+        self._products.remember(u, self._check)  # A u_0: the first residual's product
         if self.scaled_tolerance:
             set_ksp_tolerance(self.snes.getKSP(), self.tolerance)
         self._failure = None
+        self._solved_by_step = False
         before = self.jacobian_builds
         self.snes.solve(None, u)
         reason = self.snes.getConvergedReason()
@@ -263,6 +298,40 @@ class ContactStepSolver:
         if reason == Reason.DIVERGED_LINEAR_SOLVE:
             detail = f", {ksp_failure(self.snes.getKSP())}"
         return f"SNES reason {reason_name(Reason, reason)}{detail} {counts}"
+
+
+class ReusedProduct:
+    """y = A x that reuses the last product when x holds the same values.  Collective.
+
+    A Newton step forms A x at the same x up to three times (the step scale at u_0, the
+    residual, the line search's slope); the saved product is copied instead (the same
+    bits as a new product).  A must not change while the object is used.
+    """
+
+    def __init__(self, comm, matrix: PETSc.Mat):
+        self.comm, self.matrix = comm, matrix
+        self._input, self._output = matrix.createVecRight(), matrix.createVecLeft()
+        self._valid = False  # the same on every rank: set by collective calls only
+
+    def mult(self, x: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = A x (returned).  Collective."""
+        if self._valid and self._holds(x):
+            self._output.copy(out)
+        else:
+            self.matrix.mult(x, out)
+            self.remember(x, out)
+        return out
+
+    def remember(self, x: PETSc.Vec, product: PETSc.Vec) -> None:
+        """Keep ``product`` = A x for a later :meth:`mult` at the same x.  Not collective."""
+        x.copy(self._input)
+        product.copy(self._output)
+        self._valid = True
+
+    def _holds(self, x: PETSc.Vec) -> bool:
+        """x has the values of the saved input on every rank.  Collective (one allreduce)."""
+        same = np.array_equal(x.getArray(readonly=True), self._input.getArray(readonly=True))
+        return same if self.comm.size == 1 else self.comm.allreduce(same, op=MPI.LAND)
 
 
 def _minimize_monotone(derivative, start, tol: float = 1e-13, max_iter: int = 200) -> float:
@@ -293,11 +362,16 @@ def _minimize_monotone(derivative, start, tol: float = 1e-13, max_iter: int = 20
     return step
 
 
-def _check_line_search(options: PETSc.Options) -> None:
-    """Refuse a -snes_linesearch_type the exact pre-check does not work with.  Not collective."""
+def _check_line_search(options: PETSc.Options) -> bool:
+    """Refuse a -snes_linesearch_type the exact pre-check does not work with.  Not collective.
+
+    Returns whether the line search takes the pre-check's step as it is: "basic" without
+    damping evaluates F at x - y and accepts it.
+    """
     kind = options.getString("snes_linesearch_type", "basic")
     if kind not in LINE_SEARCHES:
         raise InputError(
             f"-snes_linesearch_type {kind}: not supported with the exact line search; "
             f"allowed: {', '.join(LINE_SEARCHES)}"
         )
+    return kind == "basic" and options.getReal("snes_linesearch_damping", 1.0) == 1.0
