@@ -19,16 +19,13 @@ import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from parefg.errors import InputError
 from parefg.mechanics.penalty import PENALTY_KINDS
+from parefg.scene import scene_cache
+from parefg.scene.numeric import BoundaryCondition, CompiledField, ExactSolution
 from parefg.scene.schema import elastic_constants, plain_name, step_count, validate
 from parefg.timestepping.schemes import SCHEMES
-
-if TYPE_CHECKING:  # the expression modules import sympy: loaded by _build, when needed
-    from parefg.scene.fields import BoundaryCondition, Field
-    from parefg.scene.manufactured import ExactSolution
 
 SCENES_DIR = Path(__file__).with_name("builtin")
 MAX_SCENE_BYTES = 2**24  # a scene is a few hundred bytes; a long polygon a few hundred KB
@@ -69,12 +66,12 @@ class Scene:
     alpha_contact: float
     alpha_friction: float
     boundaries: dict[str, BoundaryCondition]
-    body_force: Field
-    initial_u: Field
-    initial_v: Field
+    body_force: CompiledField
+    initial_u: CompiledField
+    initial_v: CompiledField
     # grad u0 (x, y) -> (2, 2, n) and div sigma(u0) (x, y) -> (2, n); None where u0 = 0
-    initial_grad: Field | None
-    initial_div_stress: Field | None
+    initial_grad: CompiledField | None
+    initial_div_stress: CompiledField | None
     exact: ExactSolution | None
     output_every: int
     output_fields: list[str]
@@ -181,26 +178,17 @@ _DISCRETIZATION_FIELDS = ("h", "degree", "weight", "support", "quadrature", "cel
 
 
 def _build(where: str, params: dict, part_names: list[str], source_dir: Path) -> Scene:
-    """Turn validated params into a Scene with callables."""
-    # sympy (~1/3 s to import) only where expressions are compiled: not for `parefg scenes`
-    from parefg.scene import fields
-    from parefg.scene.checks import SignChecks
-    from parefg.scene.manufactured import ManufacturedSolution, initial_elasticity
-    from parefg.scene.symbolic import DerivativeBudget
-
+    """Turn validated params into a Scene with callables (compiled data cached, see
+    :mod:`parefg.scene.scene_cache`)."""
     discretization, time = params["discretization"], params["time"]
     E, nu, lam, mu = elastic_constants(params["material"])
     rho = params["material"]["rho"]
     dynamic = SCHEMES[time["scheme"]].dynamic
-    manufactured = None
-    if "exact" in params:
-        exact_u = fields.scene_expressions(where, "exact.u", params["exact"]["u"])
-        derivatives = DerivativeBudget(where, "exact.u")
-        manufactured = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
-    checks = SignChecks(where, params, E)
-    initial_grad, initial_div_stress = initial_elasticity(
-        where, params["initial"].get("u"), manufactured, lam, mu, rho
-    )
+    key = scene_cache.scene_key(params, dynamic)
+    data = scene_cache.load(key)
+    if data is None:
+        data = _derive(where, params, E, lam, mu, rho, dynamic)
+        scene_cache.store(key, data)
     return Scene(
         name=params["name"],
         params=params,
@@ -220,20 +208,44 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         rho_inf=time.get("rho_inf"),
         n_steps=step_count(where, time),
         **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS},
-        boundaries={
-            name: fields.boundary_condition(where, name, table, manufactured, checks)
-            for name, table in params.get("boundary", {}).items()
-        },
-        body_force=fields.vector_field(
-            where, "loads.f", params["loads"].get("f"), manufactured, "f"
-        ),
-        initial_u=fields.initial_field(where, "u", params["initial"].get("u"), manufactured),
-        initial_v=fields.initial_field(where, "v", params["initial"].get("v"), manufactured),
-        initial_grad=initial_grad,
-        initial_div_stress=initial_div_stress,
-        exact=manufactured.solution() if manufactured else None,
+        **data,
         output_every=params["output"]["every"],
         output_fields=list(params["output"]["fields"]),
         solver_method=params["solver"]["method"],
         solver_options={k: v for k, v in params["solver"].items() if k != "method"},
     )
+
+
+def _derive(where: str, params: dict, E, lam, mu, rho, dynamic: bool) -> dict:
+    """The compiled data of a scene (Scene fields boundaries, body_force, initial_*, exact),
+    derived symbolically; raises InputError for a bad expression."""
+    # sympy (~1/2 s to import) only where expressions are derived: not for `parefg scenes`,
+    # nor for a run of a scene whose compiled data are cached
+    from parefg.scene import fields
+    from parefg.scene.checks import SignChecks
+    from parefg.scene.manufactured import ManufacturedSolution, initial_elasticity
+    from parefg.scene.symbolic import DerivativeBudget
+
+    manufactured = None
+    if "exact" in params:
+        exact_u = fields.scene_expressions(where, "exact.u", params["exact"]["u"])
+        derivatives = DerivativeBudget(where, "exact.u")
+        manufactured = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
+    checks = SignChecks(where, params, E)
+    initial_grad, initial_div_stress = initial_elasticity(
+        where, params["initial"].get("u"), manufactured, lam, mu, rho
+    )
+    return {
+        "boundaries": {
+            name: fields.boundary_condition(where, name, table, manufactured, checks)
+            for name, table in params.get("boundary", {}).items()
+        },
+        "body_force": fields.vector_field(
+            where, "loads.f", params["loads"].get("f"), manufactured, "f"
+        ),
+        "initial_u": fields.initial_field(where, "u", params["initial"].get("u"), manufactured),
+        "initial_v": fields.initial_field(where, "v", params["initial"].get("v"), manufactured),
+        "initial_grad": initial_grad,
+        "initial_div_stress": initial_div_stress,
+        "exact": manufactured.solution(params["exact"]["u"]) if manufactured else None,
+    }
