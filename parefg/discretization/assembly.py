@@ -63,7 +63,6 @@ def value_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     return _point_rows(nodes, mask, phi, np.zeros(1, dtype=np.int64), 1, n_nodes)
 
 
-
 def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     """(4 n_points x 2 n_nodes) gradients: row 4q + 2c + d = d phi_I / d x_d on DOF 2I + c.
 
@@ -76,6 +75,7 @@ def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     dphi = np.take_along_axis(shape.dphi, order[:, :, None], axis=1)  # (n_points, n_max, 2)
     per_row = dphi.transpose(0, 2, 1)[:, [0, 1, 0, 1], :]  # (n_points, 4, n_max): d = 0, 1, 0, 1
     return _point_rows(nodes, mask, per_row, np.array([0, 0, 1, 1]), 2, 2 * n_nodes)
+
 
 @dataclass
 class Coupling:

@@ -15,6 +15,7 @@ from parefg.scene.expressions import SYMBOLS, compile_field, parse_expression
 from parefg.scene.numeric import BoundaryCondition, CompiledField
 from parefg.scene.symbolic import is_identically_zero
 
+
 def scene_expression(where: str, key: str, value, args=("x", "y", "t")) -> sympy.Expr:
     """Parse one scene value whose free symbols must be among ``args``."""
     expr = parse_expression(value, f"{where}: {key}")

@@ -7,7 +7,8 @@ evaluator into a tree of numpy calls.  The text is parsed with :mod:`ast` and on
 numbers, the field's argument names, pi and E, ``+ - * / **`` and the functions of
 :data:`FUNCTIONS` are admitted: text never reaches ``eval``, ``exec`` or ``sympify``, so
 fields read back from the scene cache (:mod:`parefg.scene.scene_cache`) can do nothing but
-arithmetic.  Numbers are doubles (no exact big-integer arithmetic to exhaust).
+arithmetic.  Numbers are numpy doubles (no exact big-integer arithmetic to exhaust; an
+overflow is inf, caught by the run-time guards).
 
 Deriving the texts needs sympy (:mod:`parefg.scene.expressions`); compiling and
 evaluating them does not, which is what lets a cached scene start without importing it.
@@ -20,6 +21,7 @@ import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import reduce
+from typing import Any
 
 import numpy as np
 
@@ -30,7 +32,7 @@ MAX_TEXT = 2_000_000  # characters of one compiled expression (derived data: < 1
 
 #: a vectorized field: (x, y[, t[, nx, ny]]) point arrays -> (k, n) values
 Field = Callable[..., np.ndarray]
-Evaluator = Callable[[dict], np.ndarray]
+Evaluator = Callable[[dict], Any]  # name -> array (or number) -> ndarray or number
 
 
 def _minimum(*values):
@@ -72,15 +74,19 @@ FUNCTIONS: dict[str, tuple[Callable, Sequence[int]]] = {
     "atan2": (np.arctan2, (2,)),
     "DiracDelta": (dirac_delta, (1, 2)),
 }
-CONSTANTS = {"pi": math.pi, "E": math.e}
-_BINARY = {
+CONSTANTS = {"pi": np.float64(math.pi), "E": np.float64(math.e)}
+_BINARY: dict[type, Callable[[Any, Any], Any]] = {
     ast.Add: operator.add,
     ast.Sub: operator.sub,
     ast.Mult: operator.mul,
     ast.Div: operator.truediv,
     ast.Pow: operator.pow,
 }
-_UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
+_UNARY: dict[type, Callable[[Any], Any]] = {ast.USub: operator.neg, ast.UAdd: operator.pos}
+
+
+def _unknown(*args):
+    raise AssertionError("never called: no arity admits it")
 
 
 class UnsupportedText(ValueError):
@@ -107,7 +113,7 @@ def _build(node: ast.AST, names: frozenset) -> Evaluator:
     if isinstance(node, ast.Constant):
         if isinstance(node.value, bool) or not isinstance(node.value, int | float):
             raise UnsupportedText(f"constant {node.value!r}")
-        value = float(node.value)
+        value = np.float64(node.value)  # numpy arithmetic: overflow is inf, not an exception
         return lambda values: value
     if isinstance(node, ast.Name):
         name = node.id
@@ -125,8 +131,8 @@ def _build(node: ast.AST, names: frozenset) -> Evaluator:
         left, right = _build(node.left, names), _build(node.right, names)
         return lambda values: binary(left(values), right(values))
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:
-        function, arities = FUNCTIONS.get(node.func.id, (None, ()))
-        if function is not None and len(node.args) in arities:
+        function, arities = FUNCTIONS.get(node.func.id, (_unknown, ()))
+        if len(node.args) in arities:
             operands = [_build(arg, names) for arg in node.args]
             return lambda values: function(*(operand(values) for operand in operands))
     raise UnsupportedText(f"{type(node).__name__} node")
@@ -220,10 +226,3 @@ class ExactSolution:
     u: CompiledField
     v: CompiledField
     grad: CompiledField
-
-    @property
-    def exprs(self):
-        """u as sympy expressions (imports sympy)."""
-        from parefg.scene.expressions import parse_expression
-
-        return [parse_expression(value, f"exact.u[{i}]") for i, value in enumerate(self.given)]

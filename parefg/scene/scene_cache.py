@@ -168,18 +168,16 @@ _BOUNDARY_FIELDS = ("value", "traction", "gap", "friction")
 
 def _rebuild(stored: dict) -> dict:
     """The compiled data of a stored entry (inverse of :func:`_serialized`)."""
-    data = {name: _field(stored["fields"][name]) for name in FIELDS}
+    data: dict = {name: _field(stored["fields"][name]) for name in FIELDS}
     exact = stored["exact"]
-    data["exact"] = (
-        None
-        if exact is None
-        else ExactSolution(
-            given=list(exact["given"]), **{n: _field(exact[n]) for n in ("u", "v", "grad")}
-        )
-    )
+    if exact is None:
+        data["exact"] = None
+    else:
+        u, v, grad = (CompiledField.from_json(exact[name]) for name in ("u", "v", "grad"))
+        data["exact"] = ExactSolution(given=list(exact["given"]), u=u, v=v, grad=grad)
     boundaries = {}
     for name, row in stored["boundaries"].items():
-        values = {key: _field(row[key]) if key in _BOUNDARY_FIELDS else row[key] for key in row}
+        values: dict = {k: _field(row[k]) if k in _BOUNDARY_FIELDS else row[k] for k in row}
         values["kind"] = BoundaryKind(values["kind"])
         boundaries[name] = BoundaryCondition(**values)
     data["boundaries"] = boundaries
