@@ -15,8 +15,9 @@ is a miss, and the scene is derived again.  Writes go to a temporary file in the
 directory, then :func:`os.replace`: readers (other ranks, other runs) see a whole file or
 none.  An unwritable directory is silently skipped.
 
-Directory: ``$PAREFG_CACHE_DIR``, else ``$XDG_CACHE_HOME/parefg``, else
-``~/.cache/parefg``; ``PAREFG_SCENE_CACHE=0`` turns the cache off.  Not collective.
+Directory: ``scenes/`` of :func:`parefg.user_cache.cache_dir` (``~/.cache/parefg`` by
+default); ``PAREFG_SCENE_CACHE=0`` turns this cache off, ``PAREFG_CACHE=0`` every cache.
+Not collective.
 """
 
 import dataclasses
@@ -24,16 +25,14 @@ import hashlib
 import importlib.metadata
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import parefg
+from parefg import user_cache
 from parefg.boundary import BoundaryKind
 from parefg.scene.numeric import BoundaryCondition, CompiledField, ExactSolution
 
 FORMAT = 1  # layout of an entry; part of the key
-PACKAGE_DIR = Path(parefg.__file__).resolve().parent
-_SOURCE_DIGEST: list[str] = []  # the package source's digest, computed once per process
 
 #: Scene fields holding a CompiledField (or None) in an entry
 FIELDS = ("body_force", "initial_u", "initial_v", "initial_grad", "initial_div_stress")
@@ -43,22 +42,7 @@ def cache_dir() -> Path | None:
     """The directory of scene entries, or None when the cache is off."""
     if os.environ.get("PAREFG_SCENE_CACHE", "1") == "0":
         return None
-    root = os.environ.get("PAREFG_CACHE_DIR")
-    if not root:
-        xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-        root = os.path.join(xdg, "parefg")
-    return Path(root) / "scenes"
-
-
-def source_digest() -> str:
-    """sha256 of every .py file of the package (path and bytes): code changes miss."""
-    if not _SOURCE_DIGEST:
-        digest = hashlib.sha256()
-        for path in sorted(PACKAGE_DIR.rglob("*.py")):
-            digest.update(str(path.relative_to(PACKAGE_DIR)).encode())
-            digest.update(path.read_bytes())
-        _SOURCE_DIGEST.append(digest.hexdigest())
-    return _SOURCE_DIGEST[0]
+    return user_cache.cache_dir("scenes")
 
 
 def scene_key(params: dict, dynamic: bool) -> str:
@@ -71,7 +55,7 @@ def scene_key(params: dict, dynamic: bool) -> str:
         "format": FORMAT,
         "parefg": parefg.__version__,
         "sympy": sympy_version,
-        "source": source_digest(),
+        "source": user_cache.source_digest(),
         "dynamic": dynamic,
         "params": params,
     }
@@ -109,18 +93,7 @@ def store(key: str, data: dict) -> None:
         text = json.dumps({"key": key, **_serialized(data)})
     except _NotCacheable:
         return
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(
-            "w", dir=directory, prefix=f".{key[:16]}.", suffix=".tmp", delete=False
-        ) as stream:
-            stream.write(text)
-        os.replace(stream.name, directory / f"{key}.json")
-    except OSError:
-        try:
-            os.unlink(stream.name)
-        except (OSError, NameError):
-            pass
+    user_cache.write_atomic(directory / f"{key}.json", lambda stream: stream.write(text.encode()))
 
 
 class _NotCacheable(Exception):

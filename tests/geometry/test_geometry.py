@@ -309,6 +309,7 @@ def test_meshing_writes_nothing_into_home(tmp_path_factory, monkeypatch):
     restored afterwards."""
     home = tmp_path_factory.mktemp("home")
     monkeypatch.setenv("HOME", str(home))
+    monkeypatch.setenv("PAREFG_CACHE", "0")  # gmsh meshes (no cached cloud)
     build_node_cloud(MPI.COMM_WORLD, {"shape": "square"}, 0.5)
     assert list(home.iterdir()) == []
     assert os.environ["HOME"] == str(home)
