@@ -7,8 +7,8 @@ in interleaved runs, with the ratio this / baseline:
 1. Wall and CPU time of whole processes (median of --repeats): ``python -c pass``, the import
    floor of a run (numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py initialized,
    mpi4py), ``parefg --help``, ``parefg scenes``, ``parefg run square --quiet`` (default
-   scene, one rank; the scene cache warm, as on every run after the first), the same with
-   the scene cache off (``PAREFG_SCENE_CACHE=0``: the first run of a scene) and
+   scene, one rank; the user caches of scene data and meshes warm, as on every run after
+   the first), the same with the caches off (``PAREFG_CACHE=0``: a first run) and
    ``mpirun -n 2 parefg run square``.
 2. ``python -X importtime`` of ``parefg run square``: cumulative import time by top-level
    package (self times summed over its modules), medians of --repeats.
@@ -20,7 +20,7 @@ in interleaved runs, with the ratio this / baseline:
    initialization) and the next one (the ``neighbours`` phase is the first kernel call).
    This tree only.
 
-The scene cache of the measured runs is a temporary directory (warmed by one run per
+The user cache of the measured runs is a temporary directory (warmed by one run per
 tree before the timing).  Writes results/bench_startup.csv (one row per measured quantity
 and tree).  The commands run as ``python -m parefg.cli`` of the given interpreter.
 
@@ -63,10 +63,7 @@ def commands(python: str) -> dict[str, tuple[list[str], dict]]:
         "parefg --help": ([*parefg, "--help"], {}),
         "parefg scenes": ([*parefg, "scenes"], {}),
         RUN_LABEL: ([*parefg, *RUN_SQUARE], {}),
-        "parefg run square, scene cache off": (
-            [*parefg, *RUN_SQUARE],
-            {"PAREFG_SCENE_CACHE": "0"},
-        ),
+        "parefg run square, user caches off": ([*parefg, *RUN_SQUARE], {"PAREFG_CACHE": "0"}),
         "mpirun -n 2 parefg run square": (["mpirun", "-n", "2", *parefg, *RUN_SQUARE], {}),
     }
 
@@ -133,6 +130,7 @@ def timed_run(
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, **MPI_ENV, **(env or {})},
+        cwd=tempfile.gettempdir(),  # not a checkout: `-m parefg.cli` imports the tree's own
     )
     wall = time.perf_counter() - tic
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
