@@ -1,8 +1,10 @@
 """The per-user cache directory of parefg: where derived data that are costly to rebuild
 (the compiled data of a scene, the gmsh mesh of a built-in shape) are kept between runs.
 
-``$PAREFG_CACHE_DIR``, else ``$XDG_CACHE_HOME/parefg``, else ``~/.cache/parefg`` (as numba
-and pip keep theirs); ``PAREFG_CACHE=0`` turns every cache off.  Entries are named by a
+Opt-in, because a run writes nothing outside its output directory unless the user says
+so: on when ``$PAREFG_CACHE_DIR`` names the directory, or with ``PAREFG_CACHE=1`` in
+``$XDG_CACHE_HOME/parefg``, else ``~/.cache/parefg`` (as numba and pip keep theirs);
+``PAREFG_CACHE=0`` turns every cache off whatever else is set.  Entries are named by a
 hash of everything they depend on (:func:`source_digest` included), so a changed input or
 changed code misses and nothing is invalidated by hand.  Writes are atomic: readers
 (other ranks, other runs) see a whole entry or none.  Every failure to read is a miss and
@@ -21,9 +23,10 @@ _SOURCE_DIGEST: list[str] = []  # the package source's digest, computed once per
 
 def cache_dir(kind: str) -> Path | None:
     """The directory of one kind of entry ("scenes", "meshes"), or None when caching is off."""
-    if os.environ.get("PAREFG_CACHE", "1") == "0":
-        return None
+    switch = os.environ.get("PAREFG_CACHE", "")
     root = os.environ.get("PAREFG_CACHE_DIR")
+    if switch == "0" or not (root or switch == "1"):
+        return None
     if not root:
         xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
         root = os.path.join(xdg, "parefg")

@@ -13,12 +13,9 @@ verification/ for rates and balances against exact solutions, parallel/ for
 test module by its basename, which must therefore be unique across the folders.
 """
 
-import atexit
 import os
-import shutil
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -26,15 +23,6 @@ from mpi4py import MPI
 
 REPO = Path(__file__).resolve().parents[1]
 PAREFG = str(Path(sys.executable).with_name("parefg"))
-
-# The scene cache (parefg.scene.scene_cache) of this session and the CLI runs it starts:
-# the user's ~/.cache stays untouched, and every session starts with an empty cache.
-if "PAREFG_TEST_CACHE" not in os.environ:
-    os.environ["PAREFG_TEST_CACHE"] = os.environ["PAREFG_CACHE_DIR"] = tempfile.mkdtemp(
-        prefix="parefg-test-cache-"
-    )
-    atexit.register(shutil.rmtree, os.environ["PAREFG_CACHE_DIR"], ignore_errors=True)
-
 
 def pytest_collection_modifyitems(config, items):
     if MPI.COMM_WORLD.size == 1:

@@ -58,6 +58,11 @@ def mesh_key(domain: dict, h: float, cells: str) -> str | None:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+# Meshing costs more than reading only on small clouds, where start-up matters; bounding
+# the entries (~50 B per node) keeps a sweep of fine clouds from filling the disk.
+MAX_CACHED_NODES = 200_000
+
+
 def load(key: str | None) -> NodeCloud | None:
     """The cloud stored under ``key``, or None on a miss (or when key is None)."""
     directory = user_cache.cache_dir("meshes")
@@ -77,7 +82,7 @@ def load(key: str | None) -> NodeCloud | None:
 def store(key: str | None, cloud: NodeCloud) -> None:
     """Keep ``cloud`` under ``key`` (atomically); nothing when key is None or caching is off."""
     directory = user_cache.cache_dir("meshes")
-    if key is None or directory is None:
+    if key is None or directory is None or cloud.n_nodes > MAX_CACHED_NODES:
         return
     arrays = {name: getattr(cloud, name) for name in ARRAYS}
     names = np.array(cloud.part_names, dtype=str)

@@ -15,8 +15,9 @@ is a miss, and the scene is derived again.  Writes go to a temporary file in the
 directory, then :func:`os.replace`: readers (other ranks, other runs) see a whole file or
 none.  An unwritable directory is silently skipped.
 
-Directory: ``scenes/`` of :func:`parefg.user_cache.cache_dir` (``~/.cache/parefg`` by
-default); ``PAREFG_SCENE_CACHE=0`` turns this cache off, ``PAREFG_CACHE=0`` every cache.
+Directory: ``scenes/`` of :func:`parefg.user_cache.cache_dir` (opt-in: ``$PAREFG_CACHE_DIR``,
+or ``PAREFG_CACHE=1`` for ``~/.cache/parefg``); ``PAREFG_SCENE_CACHE=0`` turns this cache
+off, ``PAREFG_CACHE=0`` every cache.
 Not collective.
 """
 

@@ -9,6 +9,7 @@ import pytest
 from conftest import REPO
 from mpi4py import MPI
 
+from parefg import user_cache
 from parefg.geometry import gmsh_mesh, mesh_cache
 from parefg.geometry.gmsh_mesh import build_node_cloud
 
@@ -87,3 +88,28 @@ def test_a_geo_domain_is_not_cached(cache):
     mesh_cache.store(None, gmsh_mesh.mesh_domain({"shape": "square"}, 0.5))
     build_node_cloud(COMM, domain, 0.2)
     assert not cache.exists()
+
+
+def test_a_cloud_over_the_size_bound_is_not_kept(cache, monkeypatch):
+    """Only small clouds are kept: a sweep of fine clouds must not fill the disk."""
+    monkeypatch.setattr(mesh_cache, "MAX_CACHED_NODES", 24)  # square at h = 1/4: 25 nodes
+    build_node_cloud(COMM, {"shape": "square"}, 0.25)
+    assert not cache.exists() or list(cache.glob("*.npz")) == []
+    monkeypatch.setattr(mesh_cache, "MAX_CACHED_NODES", 25)
+    build_node_cloud(COMM, {"shape": "square"}, 0.25)
+    assert COMM.bcast(len(list(cache.glob("*.npz")))) == 1
+
+
+def test_the_user_cache_is_opt_in(tmp_path, monkeypatch):
+    """By default a run writes nothing outside its output directory: no cache directory
+    unless PAREFG_CACHE_DIR or PAREFG_CACHE=1 asks for one; PAREFG_CACHE=0 wins."""
+    for name in ("PAREFG_CACHE", "PAREFG_CACHE_DIR"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert user_cache.cache_dir("meshes") is None
+    monkeypatch.setenv("PAREFG_CACHE", "1")
+    assert user_cache.cache_dir("meshes") == tmp_path / "xdg" / "parefg" / "meshes"
+    monkeypatch.setenv("PAREFG_CACHE_DIR", str(tmp_path / "mine"))
+    assert user_cache.cache_dir("meshes") == tmp_path / "mine" / "meshes"
+    monkeypatch.setenv("PAREFG_CACHE", "0")
+    assert user_cache.cache_dir("meshes") is None
