@@ -23,6 +23,7 @@ import tempfile
 import numpy as np
 
 from parefg.errors import InputError
+from parefg.geometry import mesh_cache
 from parefg.geometry.cells import CELL_TYPES, CellType
 from parefg.geometry.cloud import (
     DIM,
@@ -77,8 +78,13 @@ def build_node_cloud(
 
 
 def _jittered_mesh(domain: dict, h: float, cells: str, jitter: float, seed: int, budget):
-    """:func:`build_node_cloud` on one rank: the meshed, jittered cloud."""
-    return jitter_cloud(mesh_domain(domain, h, cells, budget), jitter, seed)
+    """:func:`build_node_cloud` on one rank: the meshed (or cached), jittered cloud."""
+    key = mesh_cache.mesh_key(domain, h, cells)
+    cloud = mesh_cache.load(key)
+    if cloud is None:
+        cloud = mesh_domain(domain, h, cells, budget)
+        mesh_cache.store(key, cloud)
+    return jitter_cloud(cloud, jitter, seed)
 
 
 @contextlib.contextmanager

@@ -10,7 +10,7 @@ sees them.
 
 The symbols are real, so that sympy differentiates ``abs`` and friends as
 real functions.  :func:`compile_field` turns a list of such expressions into a
-vectorized numpy function.
+vectorized numpy function (:class:`~parefg.scene.numeric.CompiledField`).
 """
 
 import ast
@@ -24,6 +24,7 @@ import numpy as np
 import sympy
 
 from parefg.errors import InputError
+from parefg.scene.numeric import CompiledField, UnsupportedText, dirac_delta
 
 MAX_LENGTH = 1000  # characters of one expression
 MAX_DEPTH = 50  # nesting levels (a chain a + b + c counts as one level)
@@ -278,12 +279,8 @@ def _maximum(values, axis=0):
     return reduce(np.maximum, values)
 
 
-def _dirac_delta(argument, *order):
-    """Derivatives of heaviside/sign/abs: zero almost everywhere, which is what quadrature sees."""
-    return np.zeros_like(np.asarray(argument, dtype=float))
-
-
-_NUMPY_EXTRAS = {"amin": _minimum, "amax": _maximum, "DiracDelta": _dirac_delta}
+# lambdify's names beyond numpy's, for the rare text the whitelist evaluator refuses
+_NUMPY_EXTRAS = {"amin": _minimum, "amax": _maximum, "DiracDelta": dirac_delta}
 
 
 def numeric_form(expr: sympy.Expr) -> sympy.Expr:
@@ -327,8 +324,10 @@ def _double(value: sympy.Expr, otherwise: sympy.Expr | None = None) -> sympy.Exp
 
 
 def compile_field(
-    exprs: Sequence[sympy.Expr], args: Sequence[str] = VARIABLES
-) -> Callable[..., np.ndarray]:
+    exprs: Sequence[sympy.Expr],
+    args: Sequence[str] = VARIABLES,
+    components: Sequence[int] | None = None,
+) -> CompiledField:
     """Vectorize expressions into one numpy function.
 
     Not collective.
@@ -339,25 +338,25 @@ def compile_field(
         k sympy expressions whose free symbols are among ``SYMBOLS[a]`` for ``a`` in ``args``.
     args
         Names of the positional arguments of the returned function.
+    components
+        Shape of the value at one point: ``(k,)`` (default), ``()`` for k = 1 or e.g.
+        ``(2, 2)`` for k = 4 (row-major).
 
     Returns
     -------
-    callable
-        ``field(*values) -> ndarray`` of shape ``(k, *shape)``, where ``shape``
+    CompiledField
+        ``field(*values) -> ndarray`` of shape ``(*components, *shape)``, where ``shape``
         is the broadcast shape of ``values`` (``(n,)`` for points x, y of shape
         ``(n,)`` and a scalar t).  Constant expressions are broadcast to full
-        shape, and the result is a fresh, writable float array.
+        shape, and the result is a fresh, writable float array.  Its ``texts`` (sympy's
+        printing of :func:`numeric_form`) are what the scene cache stores; the same
+        texts compiled again give the same bits.
     """
-    symbols = [SYMBOLS[name] for name in args]
     numeric = [numeric_form(sympy.sympify(expr, strict=True)) for expr in exprs]
-    components = sympy.lambdify(symbols, numeric, modules=[_NUMPY_EXTRAS, "numpy"])
-
-    def field(*values):
-        shape = np.broadcast(*values).shape
-        # (k, *shape)
-        out = np.empty((len(exprs), *shape))
-        for row, component in enumerate(components(*values)):
-            out[row] = component
-        return out
-
-    return field
+    components = (len(exprs),) if components is None else tuple(components)
+    try:
+        return CompiledField([str(expr) for expr in numeric], args, components)
+    except UnsupportedText:  # beyond the whitelist evaluator: lambdify (and no caching)
+        symbols = [SYMBOLS[name] for name in args]
+        rows = sympy.lambdify(symbols, numeric, modules=[_NUMPY_EXTRAS, "numpy"])
+        return CompiledField(None, args, components, function=rows)

@@ -6,49 +6,14 @@ the one derived from its manufactured solution
 (:class:`~parefg.scene.manufactured.ManufacturedSolution`).  Not collective.
 """
 
-from collections.abc import Callable
-from dataclasses import dataclass
-
-import numpy as np
 import sympy
 
 from parefg.boundary import BoundaryKind
-from parefg.discretization.dirichlet import DEFAULT_DIRICHLET_METHOD
 from parefg.errors import InputError
-from parefg.mechanics.friction import DEFAULT_FRICTION_LAW, PRESSURE_LAWS
+from parefg.mechanics.friction import PRESSURE_LAWS
 from parefg.scene.expressions import SYMBOLS, compile_field, parse_expression
+from parefg.scene.numeric import BoundaryCondition, CompiledField
 from parefg.scene.symbolic import is_identically_zero
-
-#: a vectorized field: (x, y[, t[, nx, ny]]) point arrays -> (k, n) values
-Field = Callable[..., np.ndarray]
-
-
-@dataclass
-class BoundaryCondition:
-    """The data of one boundary part; callables not used by ``kind`` are None.
-
-    ``value(x, y, t) -> (2, n)`` (dirichlet ubar), ``traction(x, y, t, nx, ny)
-    -> (2, n)`` (neumann p), ``gap(x, y) -> (n,)`` and ``friction(x, y, t, nx,
-    ny) -> (n,)`` (contact s and Tresca bound g); ``friction_is_zero`` is True
-    when g is identically zero, so the solver can skip tangential terms;
-    ``friction_law`` names the contact part's law in parefg.mechanics.friction.FRICTION_LAWS.
-    A Coulomb part (friction_law in PRESSURE_LAWS) has the coefficient mu_f
-    ``friction_coefficient``, a zero ``friction`` field (its bound mu_f p is set by the
-    step), and ``friction_is_zero`` iff mu_f = 0.  A Dirichlet part names its ``method``
-    (parefg.discretization.dirichlet.DIRICHLET_METHODS) and Nitsche's ``safety``.
-    """
-
-    name: str
-    kind: BoundaryKind
-    value: Field | None = None
-    traction: Field | None = None
-    gap: Field | None = None
-    friction: Field | None = None
-    friction_is_zero: bool = True
-    friction_law: str = DEFAULT_FRICTION_LAW
-    friction_coefficient: float = 0.0
-    method: str = DEFAULT_DIRICHLET_METHOD  # a Dirichlet part's method (DIRICHLET_METHODS)
-    safety: float = 0.0  # Nitsche's beta over the coercivity bound
 
 
 def scene_expression(where: str, key: str, value, args=("x", "y", "t")) -> sympy.Expr:
@@ -66,7 +31,9 @@ def scene_expressions(where: str, key: str, values: list, args=("x", "y", "t")) 
     return [scene_expression(where, f"{key}[{i}]", value, args) for i, value in enumerate(values)]
 
 
-def vector_field(where, key, values, manufactured, derived_key, args=("x", "y", "t")) -> Field:
+def vector_field(
+    where, key, values, manufactured, derived_key, args=("x", "y", "t")
+) -> CompiledField:
     """The given expressions, or the ones derived from the exact solution."""
     exprs = scene_expressions(where, key, values, args) if values is not None else None
     if exprs is None:
@@ -74,7 +41,7 @@ def vector_field(where, key, values, manufactured, derived_key, args=("x", "y", 
     return compile_field(exprs, args)
 
 
-def initial_field(where: str, key: str, values, manufactured) -> Field:
+def initial_field(where: str, key: str, values, manufactured) -> CompiledField:
     """u0 or v0 as a function of (x, y); a given t is read as t = 0."""
     t = SYMBOLS["t"]
     if values is not None:
@@ -114,35 +81,34 @@ def _contact(where: str, name: str, table: dict, manufactured, checks) -> Bounda
     prefix = f"boundary.{name}"
     gap_expr = scene_expression(where, f"{prefix}.gap", table["gap"], ("x", "y"))
     checks.nonnegative(name, "gap", table["gap"], gap_expr)
-    gap = compile_field([gap_expr], ("x", "y"))
+    gap = compile_field([gap_expr], ("x", "y"), components=())
     if table["friction_law"] in PRESSURE_LAWS:
-        return _coulomb_boundary(name, table, lambda x, y: gap(x, y)[0])
+        return _coulomb_boundary(name, table, gap)
     given = table.get("friction")
     if given is not None:
         friction = [scene_expression(where, f"{prefix}.friction", given)]
         checks.nonnegative(name, "friction", given, friction[0])
     else:  # |tau . sigma n| >= 0
         friction = manufactured.derived["friction"]
-    friction_field = compile_field(friction, WITH_NORMAL)
     return BoundaryCondition(
         name,
         BoundaryKind.CONTACT,
-        gap=lambda x, y: gap(x, y)[0],
-        friction=lambda x, y, t, nx, ny: friction_field(x, y, t, nx, ny)[0],
+        gap=gap,
+        friction=compile_field(friction, WITH_NORMAL, components=()),
         # derived friction is homogeneous in (nx, ny): zero for all normals iff for unit ones
         friction_is_zero=is_identically_zero(friction[0], [SYMBOLS[s] for s in WITH_NORMAL]),
         friction_law=table["friction_law"],
     )
 
 
-def _coulomb_boundary(name: str, table: dict, gap: Field) -> BoundaryCondition:
+def _coulomb_boundary(name: str, table: dict, gap: CompiledField) -> BoundaryCondition:
     """A Coulomb contact part: no given bound (zero field), the coefficient mu_f."""
     coefficient = table["friction_coefficient"]
     return BoundaryCondition(
         name,
         BoundaryKind.CONTACT,
         gap=gap,
-        friction=lambda x, y, t, nx, ny: np.zeros(np.shape(x)),
+        friction=CompiledField(["0"], WITH_NORMAL, components=()),
         friction_is_zero=coefficient == 0,  # the scene's number, not a computed float
         friction_law=table["friction_law"],
         friction_coefficient=coefficient,

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from parefg.errors import InputError
 from parefg.mechanics.penalty import PENALTY_KINDS
+from parefg.scene import scene_cache
 from parefg.scene.schema import elastic_constants, plain_name, step_count, validate
 from parefg.scene.sections import (
     DiscretizationSection,
@@ -135,23 +136,14 @@ def _apply_override(raw: dict, text: str, where: str) -> None:
 
 
 def _build(where: str, params: dict, part_names: list[str], source_dir: Path) -> Scene:
-    """Turn validated params into a Scene with callables."""
-    # sympy (~1/3 s to import) only where expressions are compiled: not for `parefg scenes`
-    from parefg.scene import fields
-    from parefg.scene.checks import SignChecks
-    from parefg.scene.manufactured import initial_elasticity
-
+    """Turn validated params into a Scene with callables (compiled data cached, see
+    :mod:`parefg.scene.scene_cache`)."""
     material, time = _material(params["material"]), _time(where, params["time"])
-    manufactured = None
-    if "exact" in params:
-        exact_u = fields.scene_expressions(where, "exact.u", params["exact"]["u"])
-        manufactured = _manufactured(where, exact_u, material, time.dynamic)
-    checks = SignChecks(where, params, material.E)
-    initial_u = params["initial"].get("u")
-    grad, div_stress = initial_elasticity(
-        where, initial_u, manufactured, material.lam, material.mu, material.rho
-    )
-    initial_field = fields.initial_field
+    key = scene_cache.scene_key(params, time.dynamic)
+    data = scene_cache.load(key)
+    if data is None:
+        data = _derive(where, params, material, time.dynamic)
+        scene_cache.store(key, data)
     output = params["output"]
     return Scene(
         name=params["name"],
@@ -165,21 +157,15 @@ def _build(where: str, params: dict, part_names: list[str], source_dir: Path) ->
         penalty=PenaltySection(
             **{f"alpha_{kind}": params["penalty"][f"alpha_{kind}"] for kind in PENALTY_KINDS}
         ),
-        boundaries={
-            name: fields.boundary_condition(where, name, table, manufactured, checks)
-            for name, table in params.get("boundary", {}).items()
-        },
-        # loads before initial: the fields compile in the order of the flat Scene's
-        loads=LoadsSection(
-            f=fields.vector_field(where, "loads.f", params["loads"].get("f"), manufactured, "f")
-        ),
+        boundaries=data["boundaries"],
+        loads=LoadsSection(f=data["body_force"]),
         initial=InitialSection(
-            u=initial_field(where, "u", initial_u, manufactured),
-            v=initial_field(where, "v", params["initial"].get("v"), manufactured),
-            grad=grad,
-            div_stress=div_stress,
+            u=data["initial_u"],
+            v=data["initial_v"],
+            grad=data["initial_grad"],
+            div_stress=data["initial_div_stress"],
         ),
-        exact=manufactured.solution() if manufactured else None,
+        exact=data["exact"],
         output=OutputSection(every=output["every"], fields=tuple(output["fields"])),
         solver=_solver(params["solver"]),
     )
@@ -189,16 +175,6 @@ def _solver(table: dict) -> SolverSection:
     """The [solver] section: the method, and the rest of the table as PETSc options."""
     options = {key: value for key, value in table.items() if key != "method"}
     return SolverSection(method=table["method"], options=options)
-
-
-def _manufactured(where: str, exact_u, material: MaterialSection, dynamic: bool):
-    """The ManufacturedSolution of ``[exact] u`` (sympy expressions) in this material."""
-    from parefg.scene.manufactured import ManufacturedSolution
-    from parefg.scene.symbolic import DerivativeBudget
-
-    derivatives = DerivativeBudget(where, "exact.u")
-    lam, mu, rho = material.lam, material.mu, material.rho
-    return ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
 
 
 def _discretization(table: dict) -> DiscretizationSection:
@@ -225,3 +201,39 @@ def _time(where: str, table: dict) -> TimeSection:
         rho_inf=table.get("rho_inf"),
         n_steps=step_count(where, table),
     )
+
+
+def _derive(where: str, params: dict, material: MaterialSection, dynamic: bool) -> dict:
+    """The compiled data of a scene (boundaries, body_force, initial_*, exact: what the
+    scene cache keeps), derived symbolically; raises InputError for a bad expression."""
+    # sympy (~1/2 s to import) only where expressions are derived: not for `parefg scenes`,
+    # nor for a run of a scene whose compiled data are cached
+    from parefg.scene import fields
+    from parefg.scene.checks import SignChecks
+    from parefg.scene.manufactured import ManufacturedSolution, initial_elasticity
+    from parefg.scene.symbolic import DerivativeBudget
+
+    lam, mu, rho = material.lam, material.mu, material.rho
+    manufactured = None
+    if "exact" in params:
+        exact_u = fields.scene_expressions(where, "exact.u", params["exact"]["u"])
+        derivatives = DerivativeBudget(where, "exact.u")
+        manufactured = ManufacturedSolution(exact_u, lam, mu, rho, dynamic, derivatives)
+    checks = SignChecks(where, params, material.E)
+    initial_grad, initial_div_stress = initial_elasticity(
+        where, params["initial"].get("u"), manufactured, lam, mu, rho
+    )
+    return {
+        "boundaries": {
+            name: fields.boundary_condition(where, name, table, manufactured, checks)
+            for name, table in params.get("boundary", {}).items()
+        },
+        "body_force": fields.vector_field(
+            where, "loads.f", params["loads"].get("f"), manufactured, "f"
+        ),
+        "initial_u": fields.initial_field(where, "u", params["initial"].get("u"), manufactured),
+        "initial_v": fields.initial_field(where, "v", params["initial"].get("v"), manufactured),
+        "initial_grad": initial_grad,
+        "initial_div_stress": initial_div_stress,
+        "exact": manufactured.solution(params["exact"]["u"]) if manufactured else None,
+    }

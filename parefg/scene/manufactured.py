@@ -11,25 +11,12 @@ derived from it by symbolic differentiation:
 Not collective.
 """
 
-from dataclasses import dataclass
-
 import sympy
 
 from parefg.scene.expressions import SYMBOLS, compile_field
-from parefg.scene.fields import Field, scene_expressions
+from parefg.scene.fields import scene_expressions
+from parefg.scene.numeric import CompiledField, ExactSolution
 from parefg.scene.symbolic import DerivativeBudget, is_identically_zero
-
-
-@dataclass
-class ExactSolution:
-    """A manufactured solution: ``u(x, y, t) -> (d, n)``, ``v`` = du/dt ``-> (d, n)``,
-    ``grad(x, y, t) -> (d, d, n)`` with ``[i, j] = d u_i / d x_j``; ``exprs`` in sympy
-    (d = 2: plane strain)."""
-
-    exprs: list[sympy.Expr]
-    u: Field
-    v: Field
-    grad: Field
 
 
 class ManufacturedSolution:
@@ -81,26 +68,21 @@ class ManufacturedSolution:
             "v": [vi.subs(t, 0) for vi in self.velocity],
         }
 
-    def solution(self) -> ExactSolution:
-        """Vectorized u, v and grad u."""
+    def solution(self, given: list) -> ExactSolution:
+        """Vectorized u, v and grad u; ``given``: the scene's ``[exact] u`` values."""
         d = self.grad.shape[0]
-        gradient = compile_field([self.grad[i, j] for i in range(d) for j in range(d)])
-
-        def grad(x, y, t):
-            rows = gradient(x, y, t)  # (d^2, n), row d i + j = d u_i / d x_j
-            return rows.reshape(d, d, *rows.shape[1:])
-
+        gradient = [self.grad[i, j] for i in range(d) for j in range(d)]
         return ExactSolution(
-            exprs=list(self.u),
+            given=list(given),
             u=compile_field(self.u),
             v=compile_field(self.velocity),
-            grad=grad,
+            grad=compile_field(gradient, components=(d, d)),
         )
 
 
 def initial_elasticity(
     where: str, values, manufactured, lam: float, mu: float, rho: float
-) -> tuple[Field | None, Field | None]:
+) -> tuple[CompiledField | None, CompiledField | None]:
     """grad u0 and div sigma(u0) as functions of (x, y), for the consistent start.
 
     ``values`` are the scene's ``[initial] u`` (None: u0 of ``manufactured``, the exact
@@ -117,10 +99,8 @@ def initial_elasticity(
     derivatives = DerivativeBudget(where, "initial.u")
     initial = ManufacturedSolution(exprs, lam, mu, rho, False, derivatives)
     d = initial.grad.shape[0]
-    gradient = compile_field([initial.grad[i, j] for i in range(d) for j in range(d)], ("x", "y"))
-
-    def grad(x, y):
-        rows = gradient(x, y)  # (d^2, n), row d i + j = d u0_i / d x_j
-        return rows.reshape(d, d, *rows.shape[1:])
-
-    return grad, compile_field(initial.div_sigma, ("x", "y"))
+    gradient = [initial.grad[i, j] for i in range(d) for j in range(d)]
+    return (
+        compile_field(gradient, ("x", "y"), components=(d, d)),
+        compile_field(initial.div_sigma, ("x", "y")),
+    )

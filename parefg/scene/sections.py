@@ -14,9 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:  # the expression modules import sympy: loaded by the loader, when needed
-    from parefg.scene.fields import BoundaryCondition, Field
-    from parefg.scene.manufactured import ExactSolution
+if TYPE_CHECKING:  # annotations only
+    from parefg.scene.numeric import BoundaryCondition, CompiledField, ExactSolution
 
 
 @dataclass(frozen=True)
@@ -72,18 +71,18 @@ class PenaltySection:
 class InitialSection:
     """``[initial]``: u_0 and v_0, and the derivatives of u_0 the initial state needs."""
 
-    u: Field
-    v: Field
+    u: CompiledField
+    v: CompiledField
     # grad u0 (x, y) -> (2, 2, n) and div sigma(u0) (x, y) -> (2, n); None where u0 = 0
-    grad: Field | None
-    div_stress: Field | None
+    grad: CompiledField | None
+    div_stress: CompiledField | None
 
 
 @dataclass(frozen=True)
 class LoadsSection:
     """``[loads]``: the body force f(x, y, t)."""
 
-    f: Field
+    f: CompiledField
 
 
 @dataclass(frozen=True)

@@ -1,25 +1,31 @@
 """Start-up cost: whole-process wall time of parefg commands and where it goes.
 
-Three tables, all from one run of this script (same machine load):
+Tables, all from one run of this script (same machine load), for this tree and, with
+``--baseline PYTHON``, for another checkout's interpreter (e.g. /work/main/.venv/bin/python)
+in interleaved runs, with the ratio this / baseline:
 
 1. Wall and CPU time of whole processes (median of --repeats): ``python -c pass``, the import
    floor of a run (numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py initialized,
-   mpi4py: the modules ``parefg run square`` cannot do without), ``parefg --help``,
-   ``parefg scenes`` and ``parefg run square --quiet`` (default scene, one rank).
+   mpi4py), ``parefg --help``, ``parefg scenes``, ``parefg run square --quiet`` (default
+   scene, one rank; the user caches of scene data and meshes warm, as on every run after
+   the first), the same with the caches off (``PAREFG_CACHE=0``: a first run) and
+   ``mpirun -n 2 parefg run square``.
 2. ``python -X importtime`` of ``parefg run square``: cumulative import time by top-level
    package (self times summed over its modules), medians of --repeats.
 3. The run's own phases (summary.json timings) and the time outside them (interpreter,
    imports, PETSc initialization, exit) = wall - timings.total.
-
 4. The fixed costs, in CPU seconds of one fresh process each (robust to the load): the
-   imports a run cannot do without, importing gmsh and meshing the default square (the
-   ``mesh`` phase), and importing numba, its first cached kernel (numba's one-off
+   imports a run may need, importing gmsh and meshing the default square (the ``mesh``
+   phase), and importing numba, its first cached kernel (numba's one-off
    initialization) and the next one (the ``neighbours`` phase is the first kernel call).
+   This tree only.
 
-Writes results/bench_startup.csv (one row per measured quantity).  The commands run as
-``python -m parefg.cli``, so PYTHONPATH=OTHER_TREE measures another checkout (before/after).
+The user cache of the measured runs is a temporary directory (warmed by one run per
+tree before the timing).  Writes results/bench_startup.csv (one row per measured quantity
+and tree).  The commands run as ``python -m parefg.cli`` of the given interpreter.
 
-    .venv/bin/python scripts/bench/bench_startup.py [--repeats 5]
+    .venv/bin/python scripts/bench/bench_startup.py [--repeats 5] \
+        [--baseline /work/main/.venv/bin/python]
 """
 
 import collections
@@ -35,21 +41,31 @@ from pathlib import Path
 
 import benchlib
 
-PYTHON = sys.executable
-# `python -m parefg.cli` is the `parefg` script; it honours PYTHONPATH (compare two trees)
-PAREFG = [PYTHON, "-m", "parefg.cli"]
 RUN_SQUARE = ["run", "square", "--quiet"]
 FLOOR = (
     "import numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py; "
     "petsc4py.init(); from petsc4py import PETSc; from mpi4py import MPI"
 )
-COMMANDS = {
-    "python -c pass": [PYTHON, "-c", "pass"],
-    "import floor of a run": [PYTHON, "-c", "import parefg; " + FLOOR],
-    "parefg --help": [*PAREFG, "--help"],
-    "parefg scenes": [*PAREFG, "scenes"],
-    "parefg run square": [*PAREFG, *RUN_SQUARE],
+MPI_ENV = {
+    "OMPI_ALLOW_RUN_AS_ROOT": "1",
+    "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+    "OMPI_MCA_rmaps_base_oversubscribe": "1",
 }
+RUN_LABEL = "parefg run square"  # the runs whose summary.json phases are read
+
+
+def commands(python: str) -> dict[str, tuple[list[str], dict]]:
+    """label -> (command, extra environment) of the processes timed for one interpreter."""
+    parefg = [python, "-m", "parefg.cli"]  # the `parefg` script of that tree
+    return {
+        "python -c pass": ([python, "-c", "pass"], {}),
+        "import floor of a run": ([python, "-c", "import parefg; " + FLOOR], {}),
+        "parefg --help": ([*parefg, "--help"], {}),
+        "parefg scenes": ([*parefg, "scenes"], {}),
+        RUN_LABEL: ([*parefg, *RUN_SQUARE], {}),
+        "parefg run square, user caches off": ([*parefg, *RUN_SQUARE], {"PAREFG_CACHE": "0"}),
+        "mpirun -n 2 parefg run square": (["mpirun", "-n", "2", *parefg, *RUN_SQUARE], {}),
+    }
 
 
 # Prints "label seconds" lines of process CPU time around each piece of the first phases.
@@ -98,7 +114,9 @@ print("numba: next cached kernel", clock() - tic)
 """
 
 
-def timed_run(command: list[str], out_dir: Path | None = None) -> tuple[float, float, str]:
+def timed_run(
+    command: list[str], out_dir: Path | None = None, env: dict | None = None
+) -> tuple[float, float, str]:
     """Wall and CPU (user + sys) seconds of one process (its --out in a fresh directory)
     and its stderr.  CPU time is what the process needs on an idle core: it hardly
     depends on the machine's load, the wall time does."""
@@ -106,7 +124,13 @@ def timed_run(command: list[str], out_dir: Path | None = None) -> tuple[float, f
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     tic = time.perf_counter()
     done = subprocess.run(
-        command + extra, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+        command + extra,
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, **MPI_ENV, **(env or {})},
+        cwd=tempfile.gettempdir(),  # not a checkout: `-m parefg.cli` imports the tree's own
     )
     wall = time.perf_counter() - tic
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -125,63 +149,91 @@ def import_times(stderr: str) -> dict[str, float]:
     return dict(totals)
 
 
-def measure(repeats: int, workdir: Path):
-    """Wall times per command, import times per package, run phases: lists of samples."""
-    walls = collections.defaultdict(list)
-    cpus = collections.defaultdict(list)
-    imports = collections.defaultdict(list)
-    phases = collections.defaultdict(list)
-    pieces = collections.defaultdict(list)
+def samples():
+    return collections.defaultdict(list)
+
+
+def measure(trees: dict[str, str], repeats: int, workdir: Path) -> dict:
+    """Samples by table, tree and row: tree label -> interpreter, runs interleaved."""
+    tables = ("process, wall", "process, CPU (user + sys)", "imports", "phases", "pieces")
+    result = {table: {tree: samples() for tree in trees} for table in tables}
+    for tree, python in trees.items():  # warm the scene cache (and numba's) of each tree
+        timed_run([python, "-m", "parefg.cli", *RUN_SQUARE], workdir / f"warm-{tree}")
     for r in range(repeats):
-        for label, command in COMMANDS.items():
-            out = workdir / f"wall-{r}" if label == "parefg run square" else None
-            wall, cpu, _ = timed_run(command, out)
-            walls[label].append(wall)
-            cpus[label].append(cpu)
-            if out is not None:
-                timings = json.loads((out / "summary.json").read_text())["timings"]
-                for key, value in timings.items():
-                    phases[key].append(value)
-                phases["outside the run (wall - total)"].append(wall - timings["total"])
-        _, _, stderr = timed_run(
-            [PYTHON, "-X", "importtime", *PAREFG[1:], *RUN_SQUARE], workdir / f"i{r}"
-        )
-        per_package = import_times(stderr)
-        for package, seconds in per_package.items():
-            imports[package].append(seconds)
-        imports["(all imports)"].append(sum(per_package.values()))
+        for tree, python in trees.items():
+            for i, (label, (command, env)) in enumerate(commands(python).items()):
+                out = workdir / f"{tree}-{r}-{i}" if "run square" in label else None
+                wall, cpu, _ = timed_run(command, out, env)
+                result["process, wall"][tree][label].append(wall)
+                result["process, CPU (user + sys)"][tree][label].append(cpu)
+                if label == RUN_LABEL:
+                    timings = json.loads((out / "summary.json").read_text())["timings"]
+                    phases = result["phases"][tree]
+                    for key, value in timings.items():
+                        phases[key].append(value)
+                    phases["outside the run (wall - total)"].append(wall - timings["total"])
+            _, _, stderr = timed_run(
+                [python, "-X", "importtime", "-m", "parefg.cli", *RUN_SQUARE],
+                workdir / f"i-{tree}-{r}",
+            )
+            per_package = import_times(stderr)
+            for package, seconds in per_package.items():
+                result["imports"][tree][package].append(seconds)
+            result["imports"][tree]["(all imports)"].append(sum(per_package.values()))
         for line in subprocess.run(
-            [PYTHON, "-c", PIECES], check=True, capture_output=True, text=True
+            [sys.executable, "-c", PIECES], check=True, capture_output=True, text=True
         ).stdout.splitlines():
             label, seconds = line.rsplit(" ", 1)
-            pieces[label].append(float(seconds))
-    return walls, cpus, imports, phases, pieces
+            result["pieces"]["this tree"][label].append(float(seconds))
+    return result
 
 
-def table(title: str, samples: dict, limit: int | None = None) -> list[dict]:
-    """Print a markdown table of medians (largest first when limited); return its rows."""
-    rows = [
-        {"table": title, "what": k, "median_s": statistics.median(v)} for k, v in samples.items()
-    ]
+def table(title: str, by_tree: dict, limit: int | None = None) -> list[dict]:
+    """Print a markdown table of medians, one column per tree (and this / baseline);
+    rows largest first (of the last tree) when limited.  Return its rows."""
+    trees = [tree for tree in by_tree if by_tree[tree]]
+    names = list(dict.fromkeys(name for tree in trees for name in by_tree[tree]))
+    medians = {
+        tree: {name: statistics.median(by_tree[tree][name]) for name in by_tree[tree]}
+        for tree in trees
+    }
     if limit is not None:
-        rows = sorted(rows, key=lambda row: -row["median_s"])[:limit]
-    print(f"\n| {title} | median [s] |\n|---|---|")
-    for row in rows:
-        print(f"| {row['what']} | {row['median_s']:.3f} |")
+        names = sorted(names, key=lambda name: -medians[trees[-1]].get(name, 0.0))[:limit]
+    ratio = len(trees) == 2
+    header = " | ".join(f"{tree} [s]" for tree in trees) + (" | ratio" if ratio else "")
+    print(f"\n| {title} | {header} |\n|---|" + "---|" * (len(trees) + ratio))
+    rows = []
+    for name in names:
+        values = [medians[tree].get(name) for tree in trees]
+        cells = ["-" if v is None else f"{v:.3f}" for v in values]
+        if ratio:
+            both = None not in values and values[0] > 0
+            cells.append(f"{values[1] / values[0]:.2f}" if both else "-")
+        print(f"| {name} | " + " | ".join(cells) + " |")
+        rows += [
+            {"table": title, "tree": tree, "what": name, "median_s": value}
+            for tree, value in zip(trees, values, strict=True)
+            if value is not None
+        ]
     return rows
 
 
 def main():
     parser = benchlib.parser(__doc__, repeats=5)
+    parser.add_argument("--baseline", help="python of the checkout to compare with")
     args = parser.parse_args()
+    trees = {"baseline": args.baseline} if args.baseline else {}
+    trees["this tree"] = sys.executable
     with tempfile.TemporaryDirectory() as tmp:
-        walls, cpus, imports, phases, pieces = measure(args.repeats, Path(tmp))
+        os.environ["PAREFG_CACHE_DIR"] = str(Path(tmp) / "cache")  # the runs' scene cache
+        os.environ.pop("PAREFG_SCENE_CACHE", None)
+        result = measure(trees, args.repeats, Path(tmp))
     print(f"load average {os.getloadavg()[0]:.2f}; medians of {args.repeats}")
-    rows = table("process, wall", walls)
-    rows += table("process, CPU (user + sys)", cpus)
-    rows += table("imports of `parefg run square`, by package", imports, limit=14)
-    rows += table("phases of `parefg run square` (summary.json)", phases)
-    rows += table("fixed costs, CPU of one fresh process", pieces)
+    rows = table("process, wall", result["process, wall"])
+    rows += table("process, CPU (user + sys)", result["process, CPU (user + sys)"])
+    rows += table("imports of `parefg run square`, by package", result["imports"], limit=14)
+    rows += table("phases of `parefg run square` (summary.json)", result["phases"])
+    rows += table("fixed costs, CPU of one fresh process", result["pieces"])
     print(f"\nwrote {benchlib.write_csv(args.out, 'bench_startup.csv', rows)}")
 
 

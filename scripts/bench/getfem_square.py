@@ -48,7 +48,7 @@ import numpy as np
 import sympy
 from sympy.printing.str import StrPrinter
 
-from parefg.scene.expressions import SYMBOLS
+from parefg.scene.expressions import SYMBOLS, parse_expression
 
 # region ids of the square's parts and their outward normals
 PARTS = {"bottom": (1, (0.0, -1.0)), "right": (2, (1.0, 0.0)), "top": (3, (0.0, 1.0)),
@@ -114,7 +114,7 @@ class GwflData:
 def derive_data(scene) -> GwflData:
     """f, p, ubar, g, u0, v0 of the scene's exact solution, as parefg.scene.loader derives them."""
     x, y, t, nx, ny = (SYMBOLS[name] for name in ("x", "y", "t", "nx", "ny"))
-    u = [sympy.sympify(e) for e in scene.exact.exprs]
+    u = [parse_expression(value, "exact.u") for value in scene.exact.given]
     grad = sympy.Matrix(2, 2, lambda i, j: sympy.diff(u[i], (x, y)[j]))
     eps = (grad + grad.T) / 2
     sigma = (

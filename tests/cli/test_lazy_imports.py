@@ -1,15 +1,17 @@
 """Light commands stay light: ``import parefg.cli``, ``parefg --help`` and ``parefg scenes``
-import none of the heavy layers a run needs (sympy, matplotlib, h5py, numba, gmsh).
+import none of the heavy layers a run needs (sympy, matplotlib, h5py, numba, gmsh), and a
+run whose scene data and mesh are cached imports neither sympy nor gmsh.
 
 Each case runs in a fresh interpreter (``sys.modules`` of this one is full of them) and
 prints, as its last line, the heavy modules it ended up with.
 """
 
+import json
 import subprocess
 import sys
 
 import pytest
-from conftest import mpi_env
+from conftest import QUICK, mpi_env
 
 HEAVY = ("sympy", "matplotlib", "h5py", "numba", "gmsh")
 PROBE = """
@@ -39,3 +41,25 @@ def test_light_commands_import_no_heavy_module(argv):
     if argv == ["scenes"]:  # the command itself worked: it listed the default scene
         assert any(line.startswith("square ") for line in lines), result.stdout
     assert lines[-1] == "", f"imported {lines[-1]}"
+
+
+@pytest.mark.serial_only
+def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path):
+    """The first run derives the scene's data (sympy) and meshes (gmsh), the next one reads
+    both from the user cache: same results, and neither sympy nor gmsh imported."""
+    env = {**mpi_env(), "PAREFG_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("PAREFG_SCENE_CACHE", None)
+    imported, results = [], []
+    for run in ("derived", "cached"):
+        out = tmp_path / run
+        argv = ["run", "square", "--quiet", "--out", str(out), *QUICK]
+        probe = PROBE.format(argv=argv, heavy=("gmsh", "sympy"))
+        result = subprocess.run(
+            [sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=300
+        )
+        assert result.returncode == 0, result.stderr
+        imported.append(result.stdout.splitlines()[-1])
+        summary = json.loads((out / "summary.json").read_text())
+        results.append({k: v for k, v in summary.items() if k not in ("timings", "peak_rss_mb")})
+    assert imported == ["gmsh sympy", ""]
+    assert results[0] == results[1]

@@ -306,9 +306,13 @@ def test_degenerate_cell_is_an_input_error():
 def test_meshing_writes_nothing_into_home(tmp_path_factory, monkeypatch):
     """gmsh's FLTK layer writes ~/.fltk/fltk.org/fltk.prefs at start-up: meshing runs with a
     private HOME, so the user's home (here a fresh directory) stays empty and HOME is
-    restored afterwards."""
+    restored afterwards; the user cache is opt-in, so by default nothing lands in
+    ~/.cache either."""
     home = tmp_path_factory.mktemp("home")
     monkeypatch.setenv("HOME", str(home))
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.delenv("PAREFG_CACHE", raising=False)
+    monkeypatch.delenv("PAREFG_CACHE_DIR", raising=False)
     build_node_cloud(MPI.COMM_WORLD, {"shape": "square"}, 0.5)
     assert list(home.iterdir()) == []
     assert os.environ["HOME"] == str(home)

@@ -1,0 +1,93 @@
+"""A per-user cache of the gmsh meshes of built-in shapes: a run need not import gmsh.
+
+Importing gmsh and meshing the default square cost ~0.4 s of a run's start-up.  gmsh is
+deterministic, so its cloud (:class:`~parefg.geometry.cloud.NodeCloud`, as
+:func:`~parefg.geometry.gmsh_mesh.mesh_domain` extracts it, before any jitter) is kept
+under a key that hashes everything it depends on: the ``[domain]`` table, h, the cell
+type, the gmsh module (path, size, modification time) and the package source.  A hit
+returns gmsh's arrays bit for bit; the nodes are still gmsh's.  Only domains whose
+outline the scene alone defines are cached; a .geo domain (whose file and budget gmsh
+reads) is meshed every time.
+
+Entries are .npz files read without pickle (arrays only); anything unreadable is a
+miss.  Directory: ``meshes/`` of :func:`parefg.user_cache.cache_dir`; ``PAREFG_CACHE=0``
+turns it off.  Not collective (rank 0 meshes).
+"""
+
+import dataclasses
+import hashlib
+import importlib.util
+import json
+import os
+import zipfile
+
+import numpy as np
+
+from parefg import user_cache
+from parefg.geometry.cloud import NodeCloud
+from parefg.geometry.shapes import SHAPES
+
+FORMAT = 1  # layout of an entry; part of the key
+ARRAYS = [f.name for f in dataclasses.fields(NodeCloud) if f.name != "part_names"]
+
+
+def _gmsh_identity() -> str:
+    """Where the gmsh module is and which file it is, without importing it."""
+    spec = importlib.util.find_spec("gmsh")
+    if spec is None or spec.origin is None:
+        return "none"
+    stat = os.stat(spec.origin)
+    return f"{spec.origin}:{stat.st_size}:{stat.st_mtime_ns}"
+
+
+def mesh_key(domain: dict, h: float, cells: str) -> str | None:
+    """The cache key of one mesh, or None when it is not cached (a .geo domain)."""
+    name = domain.get("shape")
+    shape = SHAPES.get(name) if isinstance(name, str) else None
+    if shape is None or shape.outline is None:
+        return None
+    identity = {
+        "format": FORMAT,
+        "domain": domain,
+        "h": float(h),
+        "cells": cells,
+        "gmsh": _gmsh_identity(),
+        "source": user_cache.source_digest(),
+    }
+    text = json.dumps(identity, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+# Meshing costs more than reading only on small clouds, where start-up matters; bounding
+# the entries (~50 B per node) keeps a sweep of fine clouds from filling the disk.
+MAX_CACHED_NODES = 200_000
+
+
+def load(key: str | None) -> NodeCloud | None:
+    """The cloud stored under ``key``, or None on a miss (or when key is None)."""
+    directory = user_cache.cache_dir("meshes")
+    if key is None or directory is None:
+        return None
+    try:
+        with np.load(directory / f"{key}.npz", allow_pickle=False) as stored:
+            if str(stored["key"]) != key:
+                return None
+            arrays = {name: np.array(stored[name]) for name in ARRAYS}
+            part_names = [str(name) for name in stored["part_names"]]
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError):
+        return None
+    return NodeCloud(part_names=part_names, **arrays)
+
+
+def store(key: str | None, cloud: NodeCloud) -> None:
+    """Keep ``cloud`` under ``key`` (atomically); nothing when key is None or caching is off."""
+    directory = user_cache.cache_dir("meshes")
+    if key is None or directory is None or cloud.n_nodes > MAX_CACHED_NODES:
+        return
+    arrays = {name: getattr(cloud, name) for name in ARRAYS}
+    names = np.array(cloud.part_names, dtype=str)
+
+    def write(stream):
+        np.savez(stream, key=np.array(key), part_names=names, **arrays)
+
+    user_cache.write_atomic(directory / f"{key}.npz", write)

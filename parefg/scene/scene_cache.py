@@ -1,0 +1,158 @@
+"""A per-user cache of the compiled data of scenes, so that a run need not import sympy.
+
+Deriving a scene's data (parsing its expressions, differentiating its exact solution,
+checking signs) needs sympy: ~0.5 s of imports for milliseconds of work.  The result is
+a set of expression texts (:class:`~parefg.scene.numeric.CompiledField`) and a few flags,
+stored as JSON under a key that hashes everything it depends on: the effective scene
+(``params``, which holds every expression and default), the source of the package, and
+the versions of parefg and sympy.  A changed scene or code misses; nothing is ever
+invalidated by hand.
+
+Safety: the cache is read as data only.  Its texts go through the whitelist evaluator of
+:mod:`parefg.scene.numeric` (numbers, x, y, t, nx, ny, + - * / ** and numpy functions),
+never through ``eval`` or sympy; a file that is unreadable, corrupt or of another layout
+is a miss, and the scene is derived again.  Writes go to a temporary file in the cache
+directory, then :func:`os.replace`: readers (other ranks, other runs) see a whole file or
+none.  An unwritable directory is silently skipped.
+
+Directory: ``scenes/`` of :func:`parefg.user_cache.cache_dir` (opt-in: ``$PAREFG_CACHE_DIR``,
+or ``PAREFG_CACHE=1`` for ``~/.cache/parefg``); ``PAREFG_SCENE_CACHE=0`` turns this cache
+off, ``PAREFG_CACHE=0`` every cache.
+Not collective.
+"""
+
+import dataclasses
+import hashlib
+import importlib.metadata
+import json
+import os
+from pathlib import Path
+
+import parefg
+from parefg import user_cache
+from parefg.boundary import BoundaryKind
+from parefg.scene.numeric import BoundaryCondition, CompiledField, ExactSolution
+
+FORMAT = 1  # layout of an entry; part of the key
+
+#: Scene fields holding a CompiledField (or None) in an entry
+FIELDS = ("body_force", "initial_u", "initial_v", "initial_grad", "initial_div_stress")
+
+
+def cache_dir() -> Path | None:
+    """The directory of scene entries, or None when the cache is off."""
+    if os.environ.get("PAREFG_SCENE_CACHE", "1") == "0":
+        return None
+    return user_cache.cache_dir("scenes")
+
+
+def scene_key(params: dict, dynamic: bool) -> str:
+    """The cache key of a scene's compiled data."""
+    try:
+        sympy_version = importlib.metadata.version("sympy")
+    except importlib.metadata.PackageNotFoundError:
+        sympy_version = "none"
+    identity = {
+        "format": FORMAT,
+        "parefg": parefg.__version__,
+        "sympy": sympy_version,
+        "source": user_cache.source_digest(),
+        "dynamic": dynamic,
+        "params": params,
+    }
+    text = json.dumps(identity, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def load(key: str) -> dict | None:
+    """The compiled scene data stored under ``key`` (see :func:`entry`), or None on a miss.
+
+    Every failure to read or rebuild the entry is a miss.
+    """
+    directory = cache_dir()
+    if directory is None:
+        return None
+    try:
+        stored = json.loads((directory / f"{key}.json").read_text())
+        if stored.get("key") != key:
+            return None
+        return _rebuild(stored)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
+        return None  # missing, corrupt, of another layout, or refused by the evaluator
+
+
+def store(key: str, data: dict) -> None:
+    """Write ``data`` (keys FIELDS, "exact", "boundaries") under ``key``, atomically.
+
+    Does nothing when the cache is off, a field was not compiled from text, or the
+    directory is not writable.
+    """
+    directory = cache_dir()
+    if directory is None:
+        return
+    try:
+        text = json.dumps({"key": key, **_serialized(data)})
+    except _NotCacheable:
+        return
+    user_cache.write_atomic(directory / f"{key}.json", lambda stream: stream.write(text.encode()))
+
+
+class _NotCacheable(Exception):
+    """A field was compiled by lambdify (its texts are beyond the whitelist)."""
+
+
+def _field_json(field: CompiledField | None) -> dict | None:
+    if field is None:
+        return None
+    if field.texts is None:
+        raise _NotCacheable
+    return field.to_json()
+
+
+def _field(data: dict | None) -> CompiledField | None:
+    return None if data is None else CompiledField.from_json(data)
+
+
+def _serialized(data: dict) -> dict:
+    """JSON-ready form of the compiled data; raises _NotCacheable."""
+    exact = data["exact"]
+    boundaries = {}
+    for name, bc in data["boundaries"].items():
+        row = {}
+        for item in dataclasses.fields(bc):
+            value = getattr(bc, item.name)
+            if isinstance(value, CompiledField) or item.name in _BOUNDARY_FIELDS:
+                value = _field_json(value)
+            row[item.name] = value.value if isinstance(value, BoundaryKind) else value
+        boundaries[name] = row
+    return {
+        "fields": {name: _field_json(data[name]) for name in FIELDS},
+        "exact": None
+        if exact is None
+        else {
+            "given": exact.given,
+            **{name: _field_json(getattr(exact, name)) for name in ("u", "v", "grad")},
+        },
+        "boundaries": boundaries,
+    }
+
+
+_BOUNDARY_FIELDS = ("value", "traction", "gap", "friction")
+
+
+def _rebuild(stored: dict) -> dict:
+    """The compiled data of a stored entry (inverse of :func:`_serialized`)."""
+    data: dict = {name: _field(stored["fields"][name]) for name in FIELDS}
+    exact = stored["exact"]
+    if exact is None:
+        data["exact"] = None
+    else:
+        u, v, grad = (CompiledField.from_json(exact[name]) for name in ("u", "v", "grad"))
+        data["exact"] = ExactSolution(given=list(exact["given"]), u=u, v=v, grad=grad)
+    boundaries = {}
+    for name, row in stored["boundaries"].items():
+        values: dict = {k: _field(row[k]) if k in _BOUNDARY_FIELDS else row[k] for k in row}
+        values["kind"] = BoundaryKind(values["kind"])
+        boundaries[name] = BoundaryCondition(**values)
+    data["boundaries"] = boundaries
+    return data
