@@ -19,6 +19,7 @@ from mpi4py import MPI
 
 from parefg.discretization.operators import build_discretization
 from parefg.scene.loader import load_scene
+from parefg.timestepping.loop import time_loop
 from parefg.timestepping.simulation import Simulation
 
 COLUMNS = ("kinetic_energy", "elastic_energy", "penalty_energy", "dissipated_energy")
@@ -47,8 +48,7 @@ def energy_ratio(comm, eps: float) -> tuple[np.ndarray, float]:
     scene = load_scene("impact", [*overrides, f"initial.v=[{vx!r}, {vy!r}]"])
     sim = Simulation(comm, scene, build_discretization(comm, scene))
     state = sim.start()
-    for n in range(1, scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     energy = np.array([sum(r[c] for c in COLUMNS) - r["external_work"] for r in sim.history])
     return energy / energy[0], scene.time.dt
 

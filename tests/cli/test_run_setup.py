@@ -14,6 +14,7 @@ from petsc4py import PETSc
 from parefg.errors import InputError
 from parefg.run import prepare
 from parefg.sweep import run_cases
+from parefg.timestepping.loop import time_loop
 
 TINY = ["discretization.h=0.25", "discretization.degree=1", "time.dt=0.25", "time.T=0.5"]
 
@@ -27,8 +28,7 @@ def test_prepare_applies_the_overrides(comm):
     )
     assert (sim.disc.n_nodes, sim.disc.n_dofs) == (25, 50)
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     assert len(sim.history) == 3  # t = 0 and both steps
     assert sim.history[-1]["time"] == pytest.approx(0.5)
 
@@ -36,8 +36,7 @@ def test_prepare_applies_the_overrides(comm):
 def test_prepare_keeps_only_the_last_row_when_asked(comm):
     sim = prepare(comm, "square", TINY, keep_history=False)
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     assert len(sim.history) == 1 and sim.history[0]["time"] == pytest.approx(0.5)
 
 

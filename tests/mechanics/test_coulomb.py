@@ -37,6 +37,7 @@ from parefg.mechanics.contact import OPEN, STICK
 from parefg.run import prepare
 from parefg.scene.library import COULOMB_MMS, COULOMB_SLIDE, SLIDE_G, SLIDE_MU, SLIDE_V0
 from parefg.scene.loader import load_scene
+from parefg.timestepping.loop import time_loop
 from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_WORLD
@@ -148,8 +149,7 @@ def test_a_flying_body_carries_no_coulomb_friction(scenes):
 def coulomb_errors(source: str, overrides) -> dict[str, float]:
     sim = simulation(source, overrides)
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     law = sim.law
     # at the final state every sliding point carries exactly mu_f p (the converged bound)
     un = law.kinematics(state.u)[0]
@@ -198,8 +198,7 @@ def test_coulomb_matches_given_friction_with_the_exact_bound(scenes):
     COMM.barrier()
     sim = simulation(path)
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     given = sim.errors(state.u, sim.scene.time.T)
     for key in ("l2_rel", "h1_rel"):
         assert coulomb[key] == pytest.approx(given[key], rel=0.01)

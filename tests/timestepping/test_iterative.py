@@ -15,6 +15,7 @@ from parefg.parallel import set_from_options
 from parefg.run import prepare
 from parefg.scene.loader import load_scene
 from parefg.timestepping.linear_solver import SOLVER_METHODS
+from parefg.timestepping.loop import time_loop
 
 COARSE = ["discretization.h=0.125", "discretization.degree=2", "time.T=0.1"]
 # the better conditioned setting of issue 12: support 2.2, every penalty 100 E/h
@@ -41,8 +42,7 @@ def test_the_method_is_a_scene_key_from_the_registry():
 def _run(overrides):
     sim = prepare(MPI.COMM_WORLD, "square", overrides)
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     return sim, sim.errors(state.u, sim.scene.time.T)
 
 

@@ -12,6 +12,7 @@ import pytest
 from mpi4py import MPI
 
 from parefg.run import prepare
+from parefg.timestepping.loop import time_loop
 
 SLOPE_BOUND = 1024  # bytes per step
 TINY = ["discretization.h=0.25", "discretization.degree=1", "time.dt=1e-3", "time.T=10"]
@@ -56,7 +57,6 @@ def test_history_keeps_only_the_last_row_when_asked():
     sim = prepare(comm, "square", TINY[:-1] + ["time.T=0.01"], keep_history=False)
     scene = sim.scene
     state = sim.start()
-    for n in range(1, scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     assert len(sim.history) == 1 and sim.history[0]["time"] == pytest.approx(scene.time.T)
     assert sim.max_newton_per_step >= 1

@@ -11,6 +11,7 @@ from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
 from parefg.run import prepare
+from parefg.timestepping.loop import time_loop
 
 COMM = MPI.COMM_WORLD
 SHORT = ["discretization.h=0.125", "discretization.degree=1", "time.T=0.2"]
@@ -67,8 +68,7 @@ def _record_residuals(sim, rtol: float):
 
 def _run(sim):
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     return sim.errors(state.u, sim.scene.time.T)
 
 
@@ -153,8 +153,7 @@ def test_other_line_search_types_give_the_basic_result(petsc_options, direct_err
 def _impact_displacement():
     sim = prepare(COMM, "impact", ["time.T=0.4"])
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     return state.u.copy()
 
 

@@ -25,6 +25,7 @@ from parefg.run import prepare
 from parefg.scene.library import AT_REST, AT_REST_ON_OBSTACLE
 from parefg.scene.loader import load_scene
 from parefg.scene.schema import SCHEMES as SCHEMA_SCHEMES
+from parefg.timestepping.loop import time_loop
 from parefg.timestepping.schemes import SCHEMES, State, generalized_alpha_parameters
 from parefg.timestepping.simulation import Simulation
 
@@ -80,8 +81,7 @@ def run(source: str, overrides=()) -> tuple[Simulation, State]:
     """Run a scene to T in-process; return the simulation and the final state.  Collective."""
     sim = prepare(COMM, source, overrides)
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     return sim, state
 
 

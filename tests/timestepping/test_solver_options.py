@@ -6,6 +6,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.run import prepare
+from parefg.timestepping.loop import time_loop
 
 
 def _simulation(overrides):
@@ -45,8 +46,7 @@ def gamg_options():
 
 def _errors(sim):
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     return sim.errors(state.u, sim.scene.time.T)
 
 

@@ -18,6 +18,7 @@ from mpi4py import MPI
 from parefg.run import prepare
 from parefg.sweep import fitted_rate
 from parefg.timestepping.linear_solver import LinearStepSolver
+from parefg.timestepping.loop import time_loop
 from parefg.timestepping.simulation import Simulation
 from parefg.timestepping.step_solver import ContactStepSolver
 
@@ -28,8 +29,7 @@ def run(scene_name: str, overrides=()) -> tuple[Simulation, object]:
     """Run a scene to T in-process; return the simulation and the final state.  Collective."""
     sim = prepare(COMM, scene_name, overrides)
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     return sim, state
 
 

@@ -22,6 +22,7 @@ from parefg.discretization.operators import build_discretization
 from parefg.io.checkpoint import read_checkpoint, write_checkpoint
 from parefg.mechanics.discrete_gradient import dg_potential, dg_pressure, dg_slope
 from parefg.scene.loader import load_scene
+from parefg.timestepping.loop import time_loop
 from parefg.timestepping.simulation import Simulation
 
 COLUMNS = ("kinetic_energy", "elastic_energy", "penalty_energy", "dissipated_energy")
@@ -44,8 +45,7 @@ def run(scene_name: str, overrides: list[str]):
     disc = build_discretization(comm, scene)
     sim = Simulation(comm, scene, disc)
     state = sim.start()
-    for n in range(1, scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     return sim, disc, state
 
 

@@ -21,6 +21,7 @@ from mpi4py import MPI
 from test_static_convergence import BOUNDARIES, static_errors, write_static_scene
 
 from parefg.run import prepare
+from parefg.timestepping.loop import time_loop
 
 COMM = MPI.COMM_WORLD
 
@@ -54,8 +55,7 @@ def test_moving_dirichlet_data_keep_the_energy_balance(tmp_path, method):
     path.write_text(MOVING_CLAMP.format(method=method))
     sim = prepare(COMM, str(path))
     state = sim.start()
-    for n in range(1, sim.scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     rows = sim.history
     stored = np.array(
         [r["kinetic_energy"] + r["elastic_energy"] + r["penalty_energy"] for r in rows]

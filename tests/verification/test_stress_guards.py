@@ -13,6 +13,7 @@ from conftest import run_parefg
 from mpi4py import MPI
 
 from parefg.run import prepare
+from parefg.timestepping.loop import time_loop
 
 COARSE = ["discretization.h=0.125", "discretization.degree=1"]
 
@@ -64,8 +65,7 @@ def errors_at_T(jitter: float) -> dict:
     sim = prepare(comm, "square", [*COARSE, "time.T=0.5", f"discretization.jitter={jitter}"])
     scene = sim.scene
     state = sim.start()
-    for n in range(1, scene.time.n_steps + 1):
-        state = sim.step(state, n)
+    state = time_loop(sim, state, 1)
     return sim.errors(state.u, scene.time.T)
 
 
