@@ -41,7 +41,10 @@ def _gmsh_identity() -> str:
 
 
 def mesh_key(domain: dict, h: float, cells: str) -> str | None:
-    """The cache key of one mesh, or None when it is not cached (a .geo domain)."""
+    """The cache key of one mesh, or None when it is not cached (a .geo domain, or the
+    cache is off: the key reads the package source, which a run need not pay for)."""
+    if user_cache.cache_dir("meshes") is None:
+        return None
     name = domain.get("shape")
     shape = SHAPES.get(name) if isinstance(name, str) else None
     if shape is None or shape.outline is None:

@@ -46,8 +46,11 @@ def cache_dir() -> Path | None:
     return user_cache.cache_dir("scenes")
 
 
-def scene_key(params: dict, dynamic: bool) -> str:
-    """The cache key of a scene's compiled data."""
+def scene_key(params: dict, dynamic: bool) -> str | None:
+    """The cache key of a scene's compiled data; None when the cache is off (the key reads
+    the package source and the installed sympy's metadata: ~45 ms a run need not pay)."""
+    if cache_dir() is None:
+        return None
     try:
         sympy_version = importlib.metadata.version("sympy")
     except importlib.metadata.PackageNotFoundError:
@@ -64,13 +67,14 @@ def scene_key(params: dict, dynamic: bool) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def load(key: str) -> dict | None:
-    """The compiled scene data stored under ``key`` (see :func:`entry`), or None on a miss.
+def load(key: str | None) -> dict | None:
+    """The compiled scene data stored under ``key`` (see :func:`entry`), or None on a miss
+    (or when key is None).
 
     Every failure to read or rebuild the entry is a miss.
     """
     directory = cache_dir()
-    if directory is None:
+    if key is None or directory is None:
         return None
     try:
         stored = json.loads((directory / f"{key}.json").read_text())
@@ -81,14 +85,14 @@ def load(key: str) -> dict | None:
         return None  # missing, corrupt, of another layout, or refused by the evaluator
 
 
-def store(key: str, data: dict) -> None:
+def store(key: str | None, data: dict) -> None:
     """Write ``data`` (keys FIELDS, "exact", "boundaries") under ``key``, atomically.
 
     Does nothing when the cache is off, a field was not compiled from text, or the
     directory is not writable.
     """
     directory = cache_dir()
-    if directory is None:
+    if key is None or directory is None:
         return
     try:
         text = json.dumps({"key": key, **_serialized(data)})

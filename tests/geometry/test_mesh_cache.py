@@ -107,6 +107,7 @@ def test_the_user_cache_is_opt_in(tmp_path, monkeypatch):
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert user_cache.cache_dir("meshes") is None
+    assert mesh_cache.mesh_key({"shape": "square"}, 0.25, "quad") is None  # no key work
     monkeypatch.setenv("PAREFG_CACHE", "1")
     assert user_cache.cache_dir("meshes") == tmp_path / "xdg" / "parefg" / "meshes"
     monkeypatch.setenv("PAREFG_CACHE_DIR", str(tmp_path / "mine"))

@@ -113,6 +113,7 @@ def test_an_unwritable_cache_is_skipped(tmp_path, monkeypatch):
 
 def test_off_switch(cache, monkeypatch):
     monkeypatch.setenv("PAREFG_SCENE_CACHE", "0")
+    assert scene_cache.scene_key({"name": "square"}, True) is None  # no key work when off
     loader.load_scene("square")
     assert not cache.exists()
 
