@@ -217,6 +217,7 @@ def _run(
 ) -> dict:
     start = time.perf_counter()
     start_logging()
+    factorized_before = factorization_stats()[0]  # PETSc's log counts since the process began
     budget = check_problem_size(comm, scene, max_memory)
     out_dir = plan_output_dir(comm, scene.name, out)
     say = (lambda *a: print(*a, flush=True)) if comm.rank == 0 and not quiet else (lambda *a: None)
@@ -242,14 +243,16 @@ def _run(
         state = time_loop(sim, state, first, loop_observers, stop, fail_at_step)
     except SolverError as error:
         status = "interrupted" if isinstance(error, Interrupted) else "failed"
-        summary = _summary(comm, scene, disc, sim, start, status=status)
+        summary = _summary(comm, scene, disc, sim, (start, factorized_before), status=status)
         _write_summary(comm, out_dir, summary)
         writer.close(_flat(summary))
         if isinstance(error, Interrupted):
             message = f"{error}; results so far in {out_dir}"
             raise Interrupted(message, error.exit_code - 128) from None
         raise
-    summary = _summary(comm, scene, disc, sim, start, errors=sim.errors(state.u, scene.time.T))
+    summary = _summary(
+        comm, scene, disc, sim, (start, factorized_before), sim.errors(state.u, scene.time.T)
+    )
     writer.close(_flat(summary))
     summary["timings"]["total"] = time.perf_counter() - start
     _write_summary(comm, out_dir, summary)
@@ -298,12 +301,15 @@ def result_writer(comm, sim, out_dir: Path) -> ResultWriter:
     )
 
 
-def _summary(comm, scene, disc, sim, start, errors=None, status="ok") -> dict:
+def _summary(comm, scene, disc, sim, started, errors=None, status="ok") -> dict:
+    """summary.json of a run; ``started`` = (perf_counter, factorization seconds) at its start."""
+    start, factorized_before = started
     timings = {"total": time.perf_counter() - start, **disc.timings}
     timings["assembly"] = disc.timings["assembly"] + sim.timings["assembly"]
     timings.update(solve=sim.timings["solve"], output=sim.timings["output"])
     # PETSc's factorization events (part of assembly and solve), slowest rank
-    timings["factorization"] = comm.allreduce(factorization_stats()[0], op=MPI.MAX)
+    factorized = factorization_stats()[0] - factorized_before  # this run's, not the process's
+    timings["factorization"] = comm.allreduce(factorized, op=MPI.MAX)
     summary = {
         "scene": scene.name,
         "params": scene.params,

@@ -9,10 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.errors import InputError
-from parefg.run import prepare
+from parefg.profiling import factorization_stats
+from parefg.run import prepare, run_scene
+from parefg.scene.loader import load_scene
 from parefg.sweep import run_cases
 from parefg.timestepping.loop import time_loop
 
@@ -68,3 +71,16 @@ def test_run_cases_runs_the_grid_in_order_and_prints_nothing(comm, tmp_path, cap
         for i, row in enumerate(rows):
             summary = json.loads((out_dir / f"case{i:03d}" / "summary.json").read_text())
             assert summary["errors"]["l2_rel"] == row["l2_rel"]
+
+
+def test_summary_counts_the_factorizations_of_its_own_run_only(comm, tmp_path):
+    """PETSc's log accumulates over the process: a second in-process run (a sweep's next
+    case) must report its own factorization time, not the sum since the process began."""
+    out = comm.bcast(str(tmp_path) if comm.rank == 0 else None, root=0)
+    scene = load_scene("square", TINY)
+    run_scene(comm, scene, out=f"{out}/first", quiet=True)  # factorizes: the log is not empty
+    before = factorization_stats()[0]
+    assert comm.allreduce(before, op=MPI.MIN) > 0
+    summary = run_scene(comm, scene, out=f"{out}/second", quiet=True)
+    own = comm.allreduce(factorization_stats()[0] - before, op=MPI.MAX)
+    assert summary["timings"]["factorization"] == pytest.approx(own, rel=1e-12, abs=1e-12)
