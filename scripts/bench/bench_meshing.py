@@ -109,6 +109,8 @@ def main():
                 f"{row['peak_rss_mb']} |",
                 flush=True,
             )
+    keys = list(dict.fromkeys(key for row in rows for key in row))  # timed-out rows lack some
+    rows = [{key: row.get(key, "") for key in keys} for row in rows]
     print(f"wrote {benchlib.write_csv(args.out, 'bench_meshing.csv', rows)}")
 
 
