@@ -123,6 +123,16 @@ class BudgetedDiscretization(Protocol):
     def support(self) -> float: ...
 
 
+class BudgetedSolver(Protocol):
+    """The method and PETSc options of a scene's ``[solver]``."""
+
+    @property
+    def method(self) -> str: ...
+
+    @property
+    def options(self) -> dict[str, str]: ...
+
+
 class BudgetedScene(Protocol):
     """What the budget reads of a scene itself (the estimates read the rest).
 
@@ -131,6 +141,13 @@ class BudgetedScene(Protocol):
 
     name: str
     discretization: BudgetedDiscretization
+    solver: BudgetedSolver
+
+
+def uses_direct_solver(scene: BudgetedScene) -> bool:
+    """Whether the run factors its matrices: method "direct", or an LU/Cholesky -pc_type."""
+    pc_type = scene.solver.options.get("pc_type", "")
+    return scene.solver.method == "direct" or pc_type in ("lu", "cholesky")
 
 
 @dataclass(frozen=True)
@@ -182,7 +199,7 @@ class Budget:
                 f"PETSc's 32-bit indices allow at most {MAX_INDEX} per rank; use a larger h, "
                 "a smaller support or more ranks"
             )
-        needed = memory_per_rank(size, self.n_ranks)
+        needed = memory_per_rank(size, self.n_ranks, uses_direct_solver(scene))
         if needed <= slack * self.rank_bytes:
             return None
         limit = "--max-memory" if self.given else "80% of the available memory"

@@ -9,11 +9,12 @@ N) and from those the peak resident memory of the largest rank::
     memory = base + (per-rank share of)  point data  n_points * n_max * bytes per slot
                                        + Gram pairs   n_cells * G^2    (nodes of a cell's points)
                                        + matrices     nnz(A) = 4 N R   (R = nodes within 2 s c)
-                                       + Cholesky     nnz(L) = nnz(A) * fill(2 N)
+                                       + Cholesky     nnz(L) = nnz(A) * fill(2 N)  (direct only)
 
-The coefficients are measured (``scripts/bench/calibrate_budget.py``: the estimate is within a
-factor 2 of summary.json's ``peak_rss_mb``); the direct factorization's fill is a rough
-fit of MUMPS's nested-dissection fill on these stencils, growing like log N.
+The coefficients are measured (``scripts/bench/calibrate_budget.py``: the estimate is 0.95-1.45
+times summary.json's ``peak_rss_mb``, direct and iterative, m = 1 and 2); the direct
+factorization's fill is a rough fit of MUMPS's nested-dissection fill on these stencils,
+growing like log N.
 :func:`cloud_size` counts the same from an actual node cloud.  Not collective.
 """
 
@@ -35,14 +36,17 @@ TRIANGLE_GRID_SPACING = (4 + 2 * math.sqrt(2)) / 6
 # n_max / (mean neighbours): padded neighbour lists are as long as the fullest point's.
 PADDING = {"grid": 1.15, "unstructured": 1.4}
 
-# Measured bytes (scripts/bench/calibrate_budget.py): python, numpy, PETSc, MPI, numba, gmsh
-BASE_BYTES = 260e6
+# Measured bytes (scripts/bench/calibrate_budget.py; square, m = 1, 2, direct and iterative,
+# 2e3 ... 1e6 DOFs, 1 and 2 ranks): a least-squares fit of peak_rss_mb, times 1.2 (base
+# raised to the small m = 2 runs), so the estimate is 0.95-1.45x the measured peak.
+# Python, numpy, PETSc, MPI, numba, gmsh:
+BASE_BYTES = 460e6
 NODE_BYTES = 400  # node cloud and partition, held by every rank; gmsh's mesh on rank 0
-GRADIENT_SLOT_BYTES = 170  # per (point, neighbour) with gradients: ShapeValues, operators
+GRADIENT_SLOT_BYTES = 12  # per (point, neighbour) with gradients, consumed cell by cell
 VALUE_SLOT_BYTES = 60  # per (point, neighbour), values only (boundary points)
-PAIR_BYTES = 28  # per coupled node pair of one cell (Gram assembly, transient)
-ENTRY_BYTES = 40  # per nonzero of the DOF matrices (M, K, G_D, A_const; scipy and PETSc)
-FACTOR_BYTES = 16  # per nonzero of the Cholesky factors (A_const and mass, MUMPS)
+PAIR_BYTES = 18  # per coupled node pair of one cell (Gram assembly, transient)
+ENTRY_BYTES = 60  # per nonzero of the DOF matrices (M, K, A_const, Jacobian; PETSc)
+FACTOR_BYTES = 12  # per nonzero of the Cholesky factor (MUMPS), direct solvers only
 
 
 @dataclass(frozen=True)
@@ -88,15 +92,19 @@ class Size:
         return min(self.matrix_entries * fill, n_dofs * (n_dofs + 1) / 2)
 
 
-def memory_per_rank(size: Size, n_ranks: int) -> float:
-    """Estimated peak resident bytes of the largest of ``n_ranks`` ranks running ``size``."""
+def memory_per_rank(size: Size, n_ranks: int, direct: bool = True) -> float:
+    """Estimated peak resident bytes of the largest of ``n_ranks`` ranks running ``size``.
+
+    ``direct``: the linear solver factors A_const (a factor of ``size.factor_entries``);
+    an iterative one (CG + GAMG) keeps no factor.
+    """
     gradient_points = size.n_domain_points + size.n_nodes
     shared = (
         GRADIENT_SLOT_BYTES * gradient_points * size.neighbours
         + VALUE_SLOT_BYTES * size.n_boundary_points * size.neighbours
         + PAIR_BYTES * size.n_cells * size.cell_nodes * size.cell_nodes
         + ENTRY_BYTES * size.matrix_entries
-        + FACTOR_BYTES * size.factor_entries
+        + (FACTOR_BYTES * size.factor_entries if direct else 0.0)
     )
     return BASE_BYTES + NODE_BYTES * size.n_nodes + shared / n_ranks
 

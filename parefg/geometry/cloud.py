@@ -75,7 +75,11 @@ def directed_edges(quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 def mesh_edges(quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(n_edges, 2) int64 unique undirected mesh edges (a < b), sorted."""
     directed = directed_edges(quads, triangles)
-    return np.unique(np.sort(directed, axis=1), axis=0)
+    # One int64 key a * n + b per edge: a 1D unique is ~20x faster than unique(axis=0),
+    # which sorts rows as structured records (5 s of 12 for 1e6 nodes), same order.
+    n = int(directed.max()) + 1 if len(directed) else 1
+    keys = np.unique(directed.min(axis=1) * n + directed.max(axis=1))
+    return np.stack([keys // n, keys % n], axis=1)
 
 
 def signed_areas(coords: np.ndarray, cells: np.ndarray) -> np.ndarray:

@@ -3,8 +3,8 @@
 Runs each case with the CLI (2 time steps, in a temporary directory), reads the measured
 peak resident memory of the largest rank and the DOF count from summary.json, and prints
 them beside the budget's estimate (parefg.discretization.budget.memory_per_rank of the scene's
-estimated size) and their ratio.  The estimate should stay within a factor 2 of the
-measurement; writes results/calibrate_budget.csv.
+estimated size) and their ratio.  The estimate should be 0.9-1.5 times the measurement
+(direct and iterative, "H:iterative" cases); writes results/calibrate_budget.csv.
 
     .venv/bin/python scripts/bench/calibrate_budget.py            # about 2 minutes
     .venv/bin/python scripts/bench/calibrate_budget.py --quick    # three small cases
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import benchlib
 
-from parefg.discretization.budget import estimate_scene, memory_per_rank
+from parefg.discretization.budget import estimate_scene, memory_per_rank, uses_direct_solver
 from parefg.scene.loader import load_scene
 
 PAREFG = str(Path(sys.executable).with_name("parefg"))
@@ -41,6 +41,11 @@ CASES = [
     ("z", 2, "1/48", "quad", 1),
     ("z", 2, "1/32", "tri", 1),
     ("square", 3, "1/32", "quad", 1),
+    ("square", 1, "1/64:iterative", "quad", 1),
+    ("square", 1, "1/192:iterative", "quad", 1),
+    ("square", 1, "1/192:iterative", "quad", 2),
+    ("square", 2, "1/64:iterative", "quad", 1),
+    ("square", 2, "1/128:iterative", "quad", 2),
 ]
 QUICK = [CASES[0], CASES[4], CASES[9]]
 # larger runs (2-6 GB, minutes): the factorization's share grows with N
@@ -48,14 +53,20 @@ LARGE = [("square", 1, "1/192", "quad", 1), ("square", 2, "1/128", "quad", 1)]
 
 
 def overrides(degree: int, h: str, cells: str) -> list[str]:
-    """The case's --set values: 2 time steps of the scene's dt (a full run's peak)."""
-    return [
+    """The case's --set values: 2 time steps of the scene's dt (a full run's peak).
+
+    ``h`` = "1/64:iterative": CG + GAMG, at m = 2 with support 2.4 (README "Iterative solver").
+    """
+    h, _, solver = h.partition(":")
+    values = [
         f"discretization.degree={degree}",
         f"discretization.h={H[h]!r}",
         f"discretization.cells={cells}",
         "time.T=0.1",
         "time.dt=0.05",
+        f"solver.method={solver or 'direct'}",
     ]
+    return values + (["discretization.support=2.4"] if solver and degree == 2 else [])
 
 
 def measure(scene: str, sets: list[str], ranks: int) -> dict:
@@ -83,8 +94,9 @@ def main():
     cases = QUICK if args.quick else LARGE if args.large else CASES
     for scene_name, degree, h, cells, ranks in cases:
         sets = overrides(degree, h, cells)
-        size = estimate_scene(load_scene(scene_name, sets))
-        estimated = memory_per_rank(size, ranks) / 2**20
+        scene = load_scene(scene_name, sets)
+        size = estimate_scene(scene)
+        estimated = memory_per_rank(size, ranks, uses_direct_solver(scene)) / 2**20
         summary = measure(scene_name, sets, ranks)
         measured = summary["peak_rss_mb"]
         row = dict(
