@@ -27,6 +27,9 @@ from petsc4py import PETSc
 from parefg.errors import InputError, SolverError
 from parefg.parallel import default_options, raise_everywhere, wait_for_all
 
+#: PC types that solve exactly (to round-off) under KSP preonly, and that keep a factor in memory
+EXACT_FACTORIZATIONS = ("lu", "cholesky")
+
 # Options PETSc reads only in PetscFinalize, after any check a run can make.
 _READ_AT_FINALIZE = {
     "options_left",

@@ -29,6 +29,7 @@ from parefg.discretization.size_estimate import (
 )
 from parefg.errors import InputError
 from parefg.parallel import raise_everywhere
+from parefg.petsc_options import EXACT_FACTORIZATIONS
 
 GB = 1e9  # --max-memory and the messages count decimal gigabytes
 # Share of the available memory a run may take by default (the machine is shared).
@@ -147,7 +148,7 @@ class BudgetedScene(Protocol):
 def uses_direct_solver(scene: BudgetedScene) -> bool:
     """Whether the run factors its matrices: method "direct", or an LU/Cholesky -pc_type."""
     pc_type = scene.solver.options.get("pc_type", "")
-    return scene.solver.method == "direct" or pc_type in ("lu", "cholesky")
+    return scene.solver.method == "direct" or pc_type in EXACT_FACTORIZATIONS
 
 
 @dataclass(frozen=True)

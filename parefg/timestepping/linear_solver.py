@@ -22,6 +22,7 @@ from petsc4py import PETSc
 
 from parefg.errors import SolverError
 from parefg.parallel import set_from_options
+from parefg.petsc_options import EXACT_FACTORIZATIONS
 
 FACTORIZATIONS = ("lu", "cholesky", "ilu", "icc")
 #: an iterative KSP stops at this fraction of the step tolerance max(atol, rtol * scale)
@@ -145,7 +146,6 @@ def check_factorization(ksp: PETSc.KSP, matrix: PETSc.Mat) -> None:
 
 
 DEFAULT_TOLERANCES = {"rtol": 1e-10, "atol": 1e-50, "stol": 1e-13, "max_it": 200}
-EXACT_FACTORIZATIONS = ("lu", "cholesky")
 INEXACT_HINT = "inexact linear solve? tighten -ksp_rtol or use the default direct solver"
 
 
