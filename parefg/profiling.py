@@ -9,8 +9,10 @@ logging is on (:func:`start_logging`).
 
 from __future__ import annotations
 
+import resource
 import time
 from contextlib import contextmanager
+from pathlib import Path
 
 from petsc4py import PETSc
 
@@ -46,3 +48,19 @@ def factorization_stats() -> tuple[float, int]:
         seconds += info["time"]
         count += info["count"] if name.endswith("Num") else 0
     return seconds, count
+
+
+def peak_rss_kib() -> int:
+    """Peak resident memory of this process in KiB: Linux's VmHWM, else ru_maxrss.
+
+    Not ru_maxrss where /proc has VmHWM: at exec Linux carries the parent's peak into
+    ru_maxrss, so a run started from a large process (a test worker, a driver script)
+    reported the parent's memory as its own.  Not collective.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import sys
 import time
 from collections.abc import Sequence
@@ -23,7 +22,7 @@ from parefg.io.observers import CheckpointObserver, ResultsObserver
 from parefg.io.output import ResultWriter
 from parefg.parallel import call_on_root
 from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
-from parefg.profiling import factorization_stats, phase, start_logging
+from parefg.profiling import factorization_stats, peak_rss_kib, phase, start_logging
 from parefg.scene.loader import load_scene
 from parefg.timestepping.loop import Callback, Observer, time_loop
 from parefg.timestepping.simulation import Simulation
@@ -324,11 +323,7 @@ def _summary(comm, scene, disc, sim, started, errors=None, status="ok") -> dict:
         "factorizations": sim.solver.factorizations,
         "max_newton_per_step": sim.max_newton_per_step,
         **sim.coulomb_summary(),  # outer iterations of the Coulomb fixed point, if any
-        # peak resident memory of the largest rank (ru_maxrss is in KiB on Linux)
-        "peak_rss_mb": comm.allreduce(
-            resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, op=MPI.MAX
-        )
-        / 1024,
+        "peak_rss_mb": comm.allreduce(peak_rss_kib(), op=MPI.MAX) / 1024,  # largest rank
         "mls_condition": {"min": disc.condition_range[0], "max": disc.condition_range[1]},
         "version": __version__,
         "status": status,

@@ -14,7 +14,6 @@ Prints a markdown table and writes results/bench_meshing.csv.
 
 import json
 import math
-import resource
 import subprocess
 import sys
 import time
@@ -44,6 +43,7 @@ def child(domain: str, h: float, cells: str) -> dict:
 
     from parefg.geometry import gmsh_mesh
     from parefg.geometry.shapes import SHAPES
+    from parefg.profiling import peak_rss_kib
 
     table = DOMAINS[domain]
     times = {}
@@ -67,7 +67,7 @@ def child(domain: str, h: float, cells: str) -> dict:
         "quads": len(cloud.quads),
         "triangles": len(cloud.triangles),
         **{k: round(v, 3) for k, v in times.items()},
-        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+        "peak_rss_mb": round(peak_rss_kib() / 1024),
     }
 
 
