@@ -30,6 +30,7 @@ demo: setup
 
 lint: setup
 	$(VENV)/bin/ruff check parefg tests scripts
+	$(VENV)/bin/ruff format --check parefg tests scripts
 	$(VENV)/bin/mypy parefg
 
 test: lint

@@ -24,6 +24,7 @@ from mpi4py import MPI
 REPO = Path(__file__).resolve().parents[1]
 PAREFG = str(Path(sys.executable).with_name("parefg"))
 
+
 def pytest_collection_modifyitems(config, items):
     if MPI.COMM_WORLD.size == 1:
         return

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
+from petsc4py import PETSc
+
 from parefg.discretization.size_estimate import (
     Size,
     cloud_size,
@@ -146,9 +148,18 @@ class BudgetedScene(Protocol):
 
 
 def uses_direct_solver(scene: BudgetedScene) -> bool:
-    """Whether the run factors its matrices: method "direct", or an LU/Cholesky -pc_type."""
-    pc_type = scene.solver.options.get("pc_type", "")
-    return scene.solver.method == "direct" or pc_type in EXACT_FACTORIZATIONS
+    """Whether the run factors its matrices: by its -pc_type, else by its method ("direct").
+
+    The command line's -pc_type (in PETSc's options database) wins over the scene's
+    [solver] pc_type, which wins over the method's own preconditioner: the order in which
+    the step solver reads them (parefg.petsc_options.scene_options).
+    """
+    options = PETSc.Options()
+    pc_type = options.getString("pc_type") if options.hasName("pc_type") else None
+    pc_type = pc_type or scene.solver.options.get("pc_type")
+    if pc_type:
+        return pc_type in EXACT_FACTORIZATIONS
+    return scene.solver.method == "direct"
 
 
 @dataclass(frozen=True)

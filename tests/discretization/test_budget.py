@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from conftest import PAREFG, REPO, mpi_env
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from parefg.discretization.budget import (
     CLOUD_SLACK,
@@ -197,6 +198,28 @@ def test_only_direct_solvers_are_charged_a_factor():
         budget = Budget(scene, 16e9, host_ranks=1, n_ranks=1, given=True)
         verdicts[name] = budget.refusal(estimate_scene(scene)) is None
     assert verdicts == {"iterative": True, "direct": False, "iterative+lu": False}
+
+
+@pytest.mark.parametrize(
+    "method, command_line, factors",
+    [("iterative", "lu", True), ("iterative", "cholesky", True), ("direct", "gamg", False)],
+)
+def test_the_command_lines_pc_type_decides_whether_the_factor_is_charged(
+    method, command_line, factors
+):
+    """`parefg run --solver iterative -pc_type lu` factors: the budget must count it.
+
+    The command line's -pc_type (PETSc's options database) overrides the scene's method.
+    """
+    scene = load_scene("square", [f"solver.method={method}"])
+    options = PETSc.Options()
+    assert not options.hasName("pc_type")
+    options["pc_type"] = command_line
+    try:
+        assert uses_direct_solver(scene) is factors
+    finally:
+        options.delValue("pc_type")
+    assert uses_direct_solver(scene) is (method == "direct")
 
 
 # --------------------------------------------------------------------------- gmsh and stdin
