@@ -23,6 +23,8 @@ Terms with the same time factor, up to a constant (``cos(t) - 1`` and ``1 - cos(
 are merged, so K is the number of distinct time factors.  Not collective.
 """
 
+import copy
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -30,6 +32,7 @@ import sympy
 
 from parefg.scene.expressions import SYMBOLS, compile_field
 from parefg.scene.numeric import CompiledField, SeparatedField
+from parefg.scene.sections import LoadsSection
 
 MAX_TERMS = 64  # terms of one split (a distributed product beyond it is not separated)
 MAX_POWER = 4  # largest integer exponent of a sum that is distributed
@@ -166,3 +169,26 @@ def with_separation(field: CompiledField, exprs: Sequence[sympy.Expr]) -> Compil
     if cacheable or field.texts is None:
         field.separated = split
     return field
+
+
+def without_splits(scene):
+    """A copy of ``scene`` whose data have no split: they take the per-point path.
+
+    For comparisons of the two paths (tests, benchmarks); the fields are shallow copies.
+    """
+
+    def plain(field: CompiledField | None) -> CompiledField | None:
+        if field is None or field.separated is None:
+            return field
+        field = copy.copy(field)
+        field.separated = None
+        return field
+
+    boundaries = {
+        name: dataclasses.replace(
+            bc, value=plain(bc.value), traction=plain(bc.traction), friction=plain(bc.friction)
+        )
+        for name, bc in scene.boundaries.items()
+    }
+    loads = LoadsSection(f=plain(scene.loads.f))
+    return dataclasses.replace(scene, loads=loads, boundaries=boundaries)

@@ -6,9 +6,6 @@ shape functions at each t.  Both must agree to round-off, and bad data must be r
 with the same message on both paths.  Serial and under ``mpirun -n 2``.
 """
 
-import copy
-import dataclasses
-
 import numpy as np
 import pytest
 from mpi4py import MPI
@@ -18,8 +15,7 @@ from parefg.errors import DataError
 from parefg.scene.expressions import compile_field, parse_expression
 from parefg.scene.fields import WITH_NORMAL
 from parefg.scene.loader import load_scene
-from parefg.scene.sections import LoadsSection
-from parefg.scene.separable import with_separation
+from parefg.scene.separable import with_separation, without_splits
 from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_WORLD
@@ -27,34 +23,11 @@ TIMES = (0.0, 0.05, 0.3, 0.77, 1.0)
 BODY = '[domain]\nshape = "square"\n[discretization]\nh = 0.25\n[time]\nT = 0.2\ndt = 0.05\n'
 
 
-def stripped(field):
-    """The field without its split: the per-point path."""
-    if field is None:
-        return None
-    plain = copy.copy(field)
-    plain.separated = None
-    return plain
-
-
-def per_point_scene(scene):
-    boundaries = {
-        name: dataclasses.replace(
-            bc,
-            value=stripped(bc.value),
-            traction=stripped(bc.traction),
-            friction=stripped(bc.friction),
-        )
-        for name, bc in scene.boundaries.items()
-    }
-    loads = LoadsSection(f=stripped(scene.loads.f))
-    return dataclasses.replace(scene, loads=loads, boundaries=boundaries)
-
-
 def pair(source, overrides=()):
     """Simulations of the scene on the separable path and on the per-point path."""
     scene = load_scene(source, list(overrides))
     disc = build_discretization(COMM, scene)
-    return Simulation(COMM, scene, disc), Simulation(COMM, per_point_scene(scene), disc)
+    return Simulation(COMM, scene, disc), Simulation(COMM, without_splits(scene), disc)
 
 
 def relative(a, b):
@@ -183,7 +156,7 @@ def test_negative_separable_friction_bound_is_reported_as_on_the_per_point_path(
     assert bottom.friction.separated is not None
     disc = build_discretization(COMM, scene)
     fast = Simulation(COMM, scene, disc)
-    slow = Simulation(COMM, per_point_scene(scene), disc)
+    slow = Simulation(COMM, without_splits(scene), disc)
     got, want = message(fast, 3), message(slow, 3)
     assert got == want
     assert "boundary.bottom.friction = 0.5 is negative" in got and "t = 0.1:" in got
