@@ -66,6 +66,15 @@ class DataGuard:
         """
         with np.errstate(all="ignore"):
             values = np.asarray(field(*args), dtype=float)
+        return self.record(key, values, points, t, nonnegative=nonnegative)
+
+    def record(self, key, values, points, t, nonnegative=False) -> np.ndarray:
+        """Check ``values`` of a datum computed elsewhere, as :meth:`evaluate` checks its own.
+
+        Not collective.  ``values`` (k, n) or (n,) at ``points`` (n, 2), a fresh array
+        (round-off negatives of a ``nonnegative`` datum are set to 0 in place).
+        """
+        with np.errstate(all="ignore"):
             rows = np.atleast_2d(values)  # (k, n), a view of values
             bad = None
             if nonnegative:
@@ -121,6 +130,83 @@ class DataGuard:
             value = value[component] if isinstance(value, list) else None
         shown = " (derived from exact.u)" if value is None else f" = {value!r}"
         return f"scene {self.scene.name}: {name}{shown}"
+
+
+class PointDatum:
+    """One scene datum at fixed points, evaluated at any t through a :class:`DataGuard`.
+
+    A datum with a time-separable form g = sum_k a_k(t) f_k (``field.separated``, see
+    parefg.scene.separable) has its space parts f_k evaluated here once, ``space``
+    (K, *components, n); a time then costs the K numbers a_k(t) and one contraction,
+    whose values the guard checks as it checks evaluated ones (:meth:`DataGuard.record`).
+    A datum without that form or whose f_k are not all finite at the points, and any t
+    at which some a_k(t) is not finite or sum_k |a_k(t)| max |f_k| exceeds DATA_BOUND,
+    is evaluated point by point (:meth:`DataGuard.evaluate`): bad values are reported
+    with the messages they always had.
+
+    Parameters
+    ----------
+    guard, key
+        The guard and the scene path of the datum (``("loads", "f")``).
+    field
+        A CompiledField in x, y, t (and nx, ny).
+    points
+        (n, 2) this rank's points.
+    arguments
+        name -> (n,) values at the points of each argument of ``field`` but t, in the
+        order of its positional arguments, t coming after x and y (``field(x, y, t)``,
+        ``field(x, y, t, nx, ny)``: any callable of those arguments will do).
+    nonnegative
+        As in :meth:`DataGuard.evaluate` (a friction bound).
+    comm
+        If given, construction is collective and the path taken at each t is the same on
+        every rank (what a caller that integrates the values collectively needs); if
+        None, nothing is collective.
+    """
+
+    def __init__(self, guard, key, field, points, arguments, nonnegative=False, comm=None):
+        self.guard, self.key, self.field = guard, key, field
+        self.points, self.arguments, self.nonnegative = points, arguments, nonnegative
+        self.space: np.ndarray | None = None  # (K, *components, n) the f_k at the points
+        self.scale: np.ndarray | None = None  # (K,) max |f_k| (over all ranks with comm)
+        split = getattr(field, "separated", None)  # a plain callable has none
+        if split is None:
+            return
+        with np.errstate(all="ignore"):
+            space = split.space(*(arguments[name] for name in split.space.args))
+            flat = space.reshape(len(space), -1)  # (K, components * n)
+            usable = all_finite(flat)
+            scale = np.abs(flat).max(axis=1, initial=0.0)
+        if comm is not None:
+            from mpi4py import MPI
+
+            usable = comm.allreduce(usable, op=MPI.LAND)
+            comm.Allreduce(MPI.IN_PLACE, scale, op=MPI.MAX)
+        if usable:
+            self.space, self.scale = space, scale
+
+    def coefficients(self, t: float) -> np.ndarray | None:
+        """(K,) the a_k(t) when the split gives the values at t, else None.  Not collective."""
+        if self.space is None:
+            return None
+        with np.errstate(all="ignore"):
+            a = self.field.separated.time(t)
+            if not all_finite(a) or not np.abs(a) @ self.scale <= DATA_BOUND:
+                return None
+        return a
+
+    def values(self, t: float) -> np.ndarray:
+        """The datum at the points at t, (*components, n), checked by the guard.  Not collective."""
+        a = self.coefficients(t)
+        if a is None or self.space is None:
+            x, y, *normal = self.arguments.values()
+            args = (x, y, t, *normal)
+            return self.guard.evaluate(
+                self.key, self.field, self.points, t, *args, nonnegative=self.nonnegative
+            )
+        with np.errstate(all="ignore"):
+            values = np.tensordot(a, self.space, axes=1)
+        return self.guard.record(self.key, values, self.points, t, nonnegative=self.nonnegative)
 
 
 def all_finite(values: np.ndarray) -> bool:

@@ -49,7 +49,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.boundary import BoundaryKind
-from parefg.guards import DataGuard
+from parefg.guards import DataGuard, PointDatum
 from parefg.mechanics.contact_frame import ContactFrame
 from parefg.mechanics.discrete_gradient import crossings
 from parefg.mechanics.friction import FRICTION_LAWS, PRESSURE_LAWS, coulomb_bound
@@ -136,16 +136,26 @@ class ContactLaw(ContactFrame):
     def set_time(self, t: float) -> None:
         """Friction bound g(x, t) >= 0 at the points (bad values go to the guard).
 
-        The bound the step uses is g where the last :meth:`gate` let friction act.
+        The bound the step uses is g where the last :meth:`gate` let friction act.  Each
+        part's g is a :class:`~parefg.guards.PointDatum`: a time-separable bound
+        g(x, t) = sum_k a_k(t) g_k(x) costs the K numbers a_k(t) per time.  Not collective.
         """
-        if self.has_friction:
-            self.bound_data = self._per_part(
-                "friction",
-                lambda bc, x, y, n: bc.friction(x, y, t, n[:, 0], n[:, 1]),
-                t,
-                nonnegative=True,
-            )
-            self.bound = np.where(self.acting, self.bound_data, 0.0)
+        if not self.has_friction:
+            return
+        if getattr(self, "_friction_data", None) is None:  # each part's g, at the first call
+            self._friction_data = []
+            for part_id, bc in self._bcs.items():
+                on = self.part == part_id
+                points, normals = self.points[on], self.normals[on]
+                x, y, nx, ny = points[:, 0], points[:, 1], normals[:, 0], normals[:, 1]
+                key = ("boundary", bc.name, "friction")
+                arguments = {"x": x, "y": y, "nx": nx, "ny": ny}
+                datum = PointDatum(self.guard, key, bc.friction, points, arguments, True)
+                self._friction_data.append((on, datum))
+        self.bound_data = np.zeros(len(self.weights))
+        for on, datum in self._friction_data:
+            self.bound_data[on] = datum.values(t)
+        self.bound = np.where(self.acting, self.bound_data, 0.0)
 
     def gate(self, u_predicted: PETSc.Vec) -> None:
         """Fix for the coming step where each part's friction law lets the bound act.

@@ -13,6 +13,7 @@ from parefg.errors import InputError
 from parefg.mechanics.friction import PRESSURE_LAWS
 from parefg.scene.expressions import SYMBOLS, compile_field, parse_expression
 from parefg.scene.numeric import BoundaryCondition, CompiledField
+from parefg.scene.separable import with_separation
 from parefg.scene.symbolic import is_identically_zero
 
 
@@ -34,11 +35,14 @@ def scene_expressions(where: str, key: str, values: list, args=("x", "y", "t")) 
 def vector_field(
     where, key, values, manufactured, derived_key, args=("x", "y", "t")
 ) -> CompiledField:
-    """The given expressions, or the ones derived from the exact solution."""
+    """The given expressions, or the ones derived from the exact solution.
+
+    With its time-separable form (parefg.scene.separable) when it has one.
+    """
     exprs = scene_expressions(where, key, values, args) if values is not None else None
     if exprs is None:
         exprs = manufactured.derived[derived_key]
-    return compile_field(exprs, args)
+    return with_separation(compile_field(exprs, args), exprs)
 
 
 def initial_field(where: str, key: str, values, manufactured) -> CompiledField:
@@ -94,7 +98,7 @@ def _contact(where: str, name: str, table: dict, manufactured, checks) -> Bounda
         name,
         BoundaryKind.CONTACT,
         gap=gap,
-        friction=compile_field(friction, WITH_NORMAL, components=()),
+        friction=with_separation(compile_field(friction, WITH_NORMAL, components=()), friction),
         # derived friction is homogeneous in (nx, ny): zero for all normals iff for unit ones
         friction_is_zero=is_identically_zero(friction[0], [SYMBOLS[s] for s in WITH_NORMAL]),
         friction_law=table["friction_law"],

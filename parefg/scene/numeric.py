@@ -147,6 +147,8 @@ class CompiledField:
     for a scalar field (k = 1) or e.g. ``(2, 2)`` for a gradient (k = 4, row-major).  A
     fresh, writable float array; constant expressions are broadcast to full shape.
     ``texts`` is None for a field compiled another way (``function``): it cannot be cached.
+    ``separated`` is the field's time-separable form when it has one
+    (:mod:`parefg.scene.separable`), else None.
     """
 
     def __init__(
@@ -155,7 +157,9 @@ class CompiledField:
         args: Sequence[str],
         components: Sequence[int] | None = None,
         function: Callable | None = None,
+        separated: "SeparatedField | None" = None,
     ):
+        self.separated = separated
         self.texts = None if texts is None else list(texts)
         self.args = tuple(args)
         self.components = (len(texts or ()),) if components is None else tuple(components)
@@ -180,13 +184,46 @@ class CompiledField:
         return out.reshape(*self.components, *shape)
 
     def to_json(self) -> dict:
-        """The texts, arguments and components (``texts`` must not be None)."""
-        return {"texts": self.texts, "args": list(self.args), "components": list(self.components)}
+        """The texts, arguments, components and split (``texts`` must not be None)."""
+        data: dict[str, Any] = {
+            "texts": self.texts,
+            "args": list(self.args),
+            "components": list(self.components),
+        }
+        if self.separated is not None:
+            data["separated"] = self.separated.to_json()
+        return data
 
     @classmethod
     def from_json(cls, data: dict) -> "CompiledField":
         """The field of :meth:`to_json`; raises UnsupportedText (or KeyError, TypeError)."""
-        return cls(data["texts"], data["args"], data["components"])
+        separated = data.get("separated")
+        return cls(
+            data["texts"],
+            data["args"],
+            data["components"],
+            separated=None if separated is None else SeparatedField.from_json(separated),
+        )
+
+
+@dataclass
+class SeparatedField:
+    """A field g(space, t) = sum_k a_k(t) f_k(space) (see :mod:`parefg.scene.separable`).
+
+    ``time(t) -> (K,)`` the a_k; ``space(*space_args) -> (K, *components, n)`` the f_k, the
+    space arguments being the field's arguments without "t", in their order.
+    """
+
+    time: CompiledField
+    space: CompiledField
+
+    def to_json(self) -> dict:
+        """Both parts' :meth:`CompiledField.to_json` (their texts must not be None)."""
+        return {"time": self.time.to_json(), "space": self.space.to_json()}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "SeparatedField":
+        return cls(CompiledField.from_json(data["time"]), CompiledField.from_json(data["space"]))
 
 
 @dataclass

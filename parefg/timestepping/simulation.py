@@ -22,6 +22,7 @@ from parefg.timestepping.coulomb import CoulombStepSolver
 from parefg.timestepping.energy import EnergyLedger
 from parefg.timestepping.initial import InitialState
 from parefg.timestepping.linear_solver import LinearStepSolver
+from parefg.timestepping.loads import ExternalLoads
 from parefg.timestepping.schemes import State, make_scheme, relative_errors
 from parefg.timestepping.step_checks import StepChecks, stored_energy
 from parefg.timestepping.step_solver import ContactStepSolver
@@ -56,6 +57,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         ]
         self.timings: dict[str, float] = {"assembly": 0.0, "solve": 0.0, "output": 0.0}
         with phase(self.timings, "assembly"):
+            self.loads = ExternalLoads(comm, disc, scene, self.guard)
             self.a_const = self._a_const()
             self.solver: LinearStepSolver | ContactStepSolver
             if self.law is None:
@@ -124,41 +126,16 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         Written into ``out`` (a new vector if None), which is returned.  Collective; bad
         values go to ``self.guard`` (checked before the next solve).
         """
-        disc, scene = self.disc, self.scene
-        total = disc.create_vec() if out is None else out
-        total.set(0.0)
-        part = self._part
-        points = disc.domain.points
-        x, y = points.T
-        force = self.guard.evaluate(("loads", "f"), scene.loads.f, points, t, x, y, t)
-        disc.domain.integrate(force.T, part)
-        total.axpy(1.0, part)
-        for name in self.neumann_names:
-            points = disc.boundary[name]
-            x, y = points.points.T
-            nx, ny = points.normals.T
-            traction = self.guard.evaluate(
-                ("boundary", name, "traction"),
-                scene.boundaries[name].traction,
-                points.points,
-                t,
-                *(x, y, t, nx, ny),
-            )
-            points.integrate(traction.T, part)
-            total.axpy(1.0, part)
-        return total
+        return self.loads.forces(t, self.disc.create_vec() if out is None else out)
 
     def _dirichlet_value(self, name: str, t: float) -> np.ndarray:
-        """ubar(t) at the points of Dirichlet part ``name``, (n, 2); checked by the guard."""
-        points = self.disc.boundary[name].points
-        x, y = points.T
-        field = self.scene.boundaries[name].value
-        return self.guard.evaluate(("boundary", name, "value"), field, points, t, x, y, t).T
+        """ubar(t) at the points of Dirichlet part ``name``, (n, 2), read-only; checked by the
+        guard at its first evaluation for t (then cached: the step and the ledger share it)."""
+        return self.loads.dirichlet_value(name, t)
 
     def _add_dirichlet_data(self, t: float, out: PETSc.Vec) -> None:
         """out += L^T (w ubar(t)) of every Dirichlet part (penalty: alpha_D int ubar . phi_I)."""
-        for name in self.dirichlet_names:
-            self.disc.dirichlet_parts[name].add_load(self._dirichlet_value(name, t), out)
+        self.loads.add_dirichlet(t, out)
 
     def start(self) -> State:
         """Initial state, and the t = 0 row of the per-step table."""
