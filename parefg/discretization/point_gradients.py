@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from parefg.discretization.mls import MLS
+from parefg.discretization.mls import MLS, ShapeValues
 
 # Points per MLS block: bounds the transient shape arrays (a few MB at m = 2).
 BLOCK_POINTS = 4096
@@ -29,26 +29,26 @@ class PointGradients:
 
     ``keep`` stores each block's sorted neighbours and shape gradients after the first use
     (compact: 20 bytes per point and neighbour), for point sets evaluated repeatedly (the
-    nodes, at output steps); otherwise nothing is stored between calls.
+    nodes, at output steps); otherwise nothing is stored between calls.  ``kept`` passes
+    those blocks (:func:`sorted_gradients` of consecutive runs of the points, in order)
+    when the builder has already evaluated the shape gradients at the points.
     """
 
-    def __init__(self, mls: MLS, points: np.ndarray, keep: bool):
-        self.mls, self.points, self.keep = mls, points, keep
-        self.kept: list[tuple[np.ndarray, np.ndarray]] | None = None  # (nodes, dphi) per block
+    def __init__(
+        self,
+        mls: MLS,
+        points: np.ndarray,
+        keep: bool,
+        kept: list[tuple[np.ndarray, np.ndarray]] | None = None,
+    ):
+        self.mls, self.points, self.keep = mls, points, keep or kept is not None
+        self.kept = kept  # (nodes, dphi) per block
         self._reached: np.ndarray | None = None  # sorted nodes the points reach (kept sets)
 
     def _block(self, start: int) -> tuple[np.ndarray, np.ndarray]:
-        """(nodes, dphi) of the block at ``start``: neighbours sorted by node, padding last.
-
-        nodes (n_block, n_max) int32, dphi (n_block, n_max, 2); dphi is 0 at padding.
-        """
+        """:func:`sorted_gradients` of the block at ``start``."""
         points = self.points[start : start + BLOCK_POINTS]
-        shape = self.mls.evaluate(points, gradients=True)
-        assert shape.dphi is not None  # evaluated with gradients
-        keys = np.where(shape.mask, shape.neighbours, len(self.mls.nodes))  # padding last
-        order = np.argsort(keys, axis=1, kind="stable")
-        nodes = np.take_along_axis(shape.neighbours, order, axis=1).astype(np.int32)
-        return nodes, np.take_along_axis(shape.dphi, order[:, :, None], axis=1)
+        return sorted_gradients(self.mls.evaluate(points, gradients=True), len(self.mls.nodes))
 
     def _blocks(self):
         """The blocks in order (kept ones, or freshly evaluated)."""
@@ -94,6 +94,18 @@ class PointGradients:
                     out[start:stop, c, d] = _pairwise_row_sums(dphi[:, :, d] * values)
             start = stop
         return out
+
+
+def sorted_gradients(shape: ShapeValues, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """(nodes, dphi) of ``shape`` (with gradients): neighbours sorted by node, padding last.
+
+    nodes (n_points, n_max) int32, dphi (n_points, n_max, 2); dphi is 0 at padding.
+    """
+    assert shape.dphi is not None  # evaluated with gradients
+    keys = np.where(shape.mask, shape.neighbours, n_nodes)  # padding last
+    order = np.argsort(keys, axis=1, kind="stable")
+    nodes = np.take_along_axis(shape.neighbours, order, axis=1).astype(np.int32)
+    return nodes, np.take_along_axis(shape.dphi, order[:, :, None], axis=1)
 
 
 def _pairwise_row_sums(products: np.ndarray) -> np.ndarray:
