@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from parefg.discretization import assembly_kernels as kernels
-from parefg.discretization.assembly import value_operator
+from parefg.discretization.assembly import sorted_slots, value_operator
 from parefg.discretization.mls import MLS
 from parefg.discretization.point_gradients import sorted_gradients
 from parefg.discretization.quadrature import Quadrature
@@ -94,16 +94,25 @@ class _BlockPasses:
         self.n_nodes = len(mls.nodes)
         bounds, self.group_start = _blocks(quadrature.cell)
         self.blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-        self.neighbours: list[tuple[np.ndarray, np.ndarray] | None] = [None] * len(self.blocks)
+        self.searched: list[tuple | None] = [None] * len(self.blocks)  # of a one-block domain
         self.padded_slots = 0  # points x padded neighbours over all blocks
 
-    def block_neighbours(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """The (neighbours, mask) of block ``index``: pass 1's, else searched again."""
+    def block_pairs(self, index: int) -> tuple:
+        """(neighbours, mask, node_start, nodes, pairs) of block ``index`` (see _pairs):
+        pass 1's for a domain of one block (its arrays exist in pass 2 anyway), else
+        searched again."""
+        found = self.searched[index]
+        if found is not None:
+            self.searched[index] = None  # pass 2 takes them
+            return found
         first, last = self.blocks[index]
-        found = self.neighbours[index]
-        if found is None:
-            with self.timer("neighbours"):
-                found = self.mls.find_neighbours(self.quadrature.points[first:last])
+        with self.timer("neighbours"):
+            neighbours, mask = self.mls.find_neighbours(self.quadrature.points[first:last])
+        with self.timer("assembly"):
+            pairs = _pairs(neighbours, mask, self.groups_of(first, last), self.n_nodes)
+        found = (neighbours, mask, *pairs)
+        if len(self.blocks) == 1:
+            self.searched[index] = found
         return found
 
     def groups_of(self, first: int, last: int) -> np.ndarray:
@@ -117,14 +126,9 @@ class _BlockPasses:
         rows, cols = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
         row_lengths = np.zeros(len(points), dtype=np.int64)
         for index, (first, last) in enumerate(self.blocks):
-            neighbours, mask = self.block_neighbours(index)
-            if len(self.blocks) == 1:  # kept for pass 2 (the block's arrays exist anyway)
-                self.neighbours[index] = (neighbours, mask)
+            neighbours, mask, *_, (_, _, pair_row, pair_col) = self.block_pairs(index)
             self.padded_slots += neighbours.size
             with timer("assembly"):
-                *_, (_, _, pair_row, pair_col) = _pairs(
-                    neighbours, mask, self.groups_of(first, last), n_nodes
-                )
                 block_ptr, block_indices, _ = kernels.pairs_to_csr(pair_row, pair_col, n_nodes)
                 rows.append(np.repeat(np.arange(n_nodes), np.diff(block_ptr)))
                 cols.append(block_indices)
@@ -149,17 +153,16 @@ class _BlockPasses:
             value_data = np.empty(value_indptr[-1])
         low, high = np.inf, 0.0
         for index, (first, last) in enumerate(self.blocks):
-            neighbours, mask = self.block_neighbours(index)
-            self.neighbours[index] = None
+            searched = self.block_pairs(index)
+            neighbours, mask, node_start, nodes, (pair_start, pair_local, pair_row, pair_col) = (
+                searched
+            )
             with timer("mls"):
                 block = points[first:last]
                 shape = mls.evaluate(block, gradients=True, neighbours=(neighbours, mask))
             low, high = min(low, shape.condition.min()), max(high, shape.condition.max())
             with timer("assembly"):
                 groups = self.groups_of(first, last)
-                node_start, nodes, (pair_start, pair_local, pair_row, pair_col) = _pairs(
-                    neighbours, mask, groups, n_nodes
-                )
                 position = kernels.pair_positions(indptr, indices, pair_row, pair_col)
                 weights = quadrature.weights[first:last]
                 local_of = np.zeros(n_nodes, dtype=np.int64)
@@ -171,11 +174,12 @@ class _BlockPasses:
                 kernels.gram_groups(
                     dphi, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
                 )
-                piece = value_operator(shape, n_nodes)  # the block's rows, columns sorted
+                slots = sorted_slots(shape, n_nodes)
+                piece = value_operator(shape, n_nodes, slots)  # the block's rows, columns sorted
                 value_indices[value_indptr[first] : value_indptr[last]] = piece.indices
                 value_data[value_indptr[first] : value_indptr[last]] = piece.data
                 if keep:
-                    kept.append(sorted_gradients(shape, n_nodes))
+                    kept.append(sorted_gradients(shape, n_nodes, slots))
         values = (value_indptr, value_indices, value_data)
         return DomainOperators(
             indptr, indices, mass, gradient_gram, *values, (low, high), kept if keep else None

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
+from parefg.discretization.assembly import gather, sorted_slots
 from parefg.discretization.mls import MLS, ShapeValues
 
 # Points per MLS block: bounds the transient shape arrays (a few MB at m = 2).
@@ -96,16 +97,16 @@ class PointGradients:
         return out
 
 
-def sorted_gradients(shape: ShapeValues, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+def sorted_gradients(shape: ShapeValues, n_nodes: int, slots=None) -> tuple[np.ndarray, np.ndarray]:
     """(nodes, dphi) of ``shape`` (with gradients): neighbours sorted by node, padding last.
 
     nodes (n_points, n_max) int32, dphi (n_points, n_max, 2); dphi is 0 at padding.
+    ``slots``: the :func:`~parefg.discretization.assembly.sorted_slots` of ``shape`` if
+    the caller has them.
     """
     assert shape.dphi is not None  # evaluated with gradients
-    keys = np.where(shape.mask, shape.neighbours, n_nodes)  # padding last
-    order = np.argsort(keys, axis=1, kind="stable")
-    nodes = np.take_along_axis(shape.neighbours, order, axis=1).astype(np.int32)
-    return nodes, np.take_along_axis(shape.dphi, order[:, :, None], axis=1)
+    order, nodes, _ = sorted_slots(shape, n_nodes) if slots is None else slots
+    return nodes.astype(np.int32), gather(shape.dphi, order)
 
 
 def _pairwise_row_sums(products: np.ndarray) -> np.ndarray:
