@@ -45,6 +45,18 @@ def test_domain_keeps_its_gradients_when_small_and_they_equal_fresh_ones(monkeyp
     )
 
 
+def test_kept_domain_gradients_are_bounded(monkeypatch):
+    """A cloud whose padded gradients exceed KEEP_GRADIENT_BYTES keeps none."""
+    comm = MPI.COMM_WORLD
+    disc = build_discretization(comm, _scene())
+    size = sum(nodes.nbytes + dphi.nbytes for nodes, dphi in disc.domain.gradients.kept)
+    assert size <= domain_assembly.KEEP_GRADIENT_BYTES
+    monkeypatch.setattr(domain_assembly, "KEEP_GRADIENT_BYTES", size - 1)
+    assert build_discretization(comm, _scene()).domain.gradients.kept is None
+    monkeypatch.setattr(domain_assembly, "KEEP_GRADIENT_BYTES", size)
+    assert build_discretization(comm, _scene()).domain.gradients.kept is not None
+
+
 def test_domain_of_several_blocks_keeps_gradients_that_equal_fresh_ones(monkeypatch):
     monkeypatch.setattr(domain_assembly, "BLOCK_POINTS", 37)
     disc = build_discretization(MPI.COMM_WORLD, _scene())
