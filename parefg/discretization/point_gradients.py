@@ -66,10 +66,14 @@ class PointGradients:
             self.kept = kept
 
     def _reached_nodes(self) -> np.ndarray:
-        """Sorted nodes the points' neighbour lists hold (kept for kept sets).  Not collective."""
+        """Sorted nodes the points' neighbour lists hold (kept for kept sets; from the kept
+        blocks, padding included, once they exist).  Not collective."""
         if self._reached is not None:
             return self._reached
         parts = [np.zeros(0, dtype=np.int64)]
+        if self.kept is not None:
+            self._reached = np.unique(np.concatenate([*parts, *(n.ravel() for n, _ in self.kept)]))
+            return self._reached
         for start in range(0, len(self.points), BLOCK_POINTS):
             neighbours, mask = self.mls.find_neighbours(self.points[start : start + BLOCK_POINTS])
             parts.append(np.unique(neighbours[mask]))
