@@ -93,9 +93,10 @@ class PointGradients:
         for nodes, dphi in self._blocks():
             at = nodes if lookup is None else np.searchsorted(lookup, nodes)
             stop = start + len(nodes)
-            values = nodal[at].transpose(0, 2, 1)  # (n_block, 2, n_max): u_c at the neighbours
-            products = values[:, :, None, :] * dphi.transpose(0, 2, 1)[:, None, :, :]
-            out[start:stop] = _pairwise_row_sums(products)  # (n_block, c, d, n_max) summed
+            for c in range(2):
+                values = nodal[at, c]  # (n_block, n_max) u_c at the neighbours
+                for d in range(2):
+                    out[start:stop, c, d] = _pairwise_row_sums(dphi[:, :, d] * values)
             start = stop
         return out
 
@@ -113,18 +114,18 @@ def sorted_gradients(shape: ShapeValues, n_nodes: int, slots=None) -> tuple[np.n
 
 
 def _pairwise_row_sums(products: np.ndarray) -> np.ndarray:
-    """Sums over the last axis added as PETSc's inode product adds them:
-    ((p0 + p1) + (p2 + p3)) + ..., one pair after the other.
+    """Row sums added as PETSc's inode product adds them: ((0 + (p0 + p1)) + (p2 + p3)) + ...
 
-    ``products`` (..., n_max) with the padding (zeros) last; an odd last term pairs with
-    a zero, which adds nothing.  Returns (...).
+    ``products`` (n, n_max) with the padding (zeros) last; an odd last term pairs with a
+    zero, which adds nothing.
     """
-    if products.shape[-1] % 2:
-        products = np.concatenate([products, np.zeros((*products.shape[:-1], 1))], axis=-1)
-    if products.shape[-1] == 0:
-        return np.zeros(products.shape[:-1])
-    pairs = products[..., 0::2] + products[..., 1::2]  # (..., n_max / 2)
-    return np.cumsum(pairs, axis=-1)[..., -1]  # cumsum adds strictly in order
+    if products.shape[1] % 2:
+        products = np.pad(products, ((0, 0), (0, 1)))
+    pairs = products[:, 0::2] + products[:, 1::2]  # (n, n_max / 2)
+    total = np.zeros(len(products))
+    for column in range(pairs.shape[1]):
+        total = total + pairs[:, column]
+    return total
 
 
 def _nodal_values(comm, u: PETSc.Vec, reached: np.ndarray | None):
