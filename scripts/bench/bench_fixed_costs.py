@@ -16,10 +16,12 @@ Tables (medians of --repeats runs per case and worker, over --rounds workers per
 
 With ``--baseline PYTHON`` (e.g. /work/main/.venv/bin/python) the same worker runs with
 that interpreter (its checkout's parefg), alternating with this tree's, and the tables
-add the ratio this / baseline.  Writes results/bench_fixed_costs.csv.
+add the ratio this / baseline.  ``--clock cpu`` measures process CPU time instead of
+wall time (robust to a loaded machine; the runs are single-threaded with
+OMP_NUM_THREADS=1).  Writes results/bench_fixed_costs.csv.
 
     .venv/bin/python scripts/bench/bench_fixed_costs.py [--repeats 5] [--rounds 2] \
-        [--baseline /work/main/.venv/bin/python]
+        [--baseline /work/main/.venv/bin/python] [--clock cpu]
 """
 
 import argparse
@@ -61,22 +63,26 @@ PHASES = [
 ]
 
 
-class Phases:
-    """Exclusive wall time per phase: a phase's time excludes the phases it calls."""
+CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 
-    def __init__(self):
+
+class Phases:
+    """Exclusive time per phase: a phase's time excludes the phases it calls."""
+
+    def __init__(self, clock):
+        self.clock = clock
         self.seconds: dict[str, float] = {}
         self.stack: list[list] = []  # [label, start, time in nested phases]
 
     def wrap(self, label: str, function):
         @functools.wraps(function)
         def timed(*args, **kwargs):
-            self.stack.append([label, time.perf_counter(), 0.0])
+            self.stack.append([label, self.clock(), 0.0])
             try:
                 return function(*args, **kwargs)
             finally:
                 label_, start, nested = self.stack.pop()
-                spent = time.perf_counter() - start
+                spent = self.clock() - start
                 self.seconds[label_] = self.seconds.get(label_, 0.0) + spent - nested
                 if self.stack:
                     self.stack[-1][2] += spent
@@ -95,7 +101,7 @@ class Phases:
 
 
 def run_once(m: int, n: int, dt: float, one_step: bool, phases: Phases) -> tuple[float, dict]:
-    """Wall time of run_scene on the square scene, and the phases (ms) of that run."""
+    """Time of run_scene on the square scene, and the phases (ms) of that run."""
     from mpi4py import MPI
 
     from parefg.run import run_scene
@@ -106,17 +112,17 @@ def run_once(m: int, n: int, dt: float, one_step: bool, phases: Phases) -> tuple
     scene = load_scene("square", overrides)
     phases.seconds = {}
     with tempfile.TemporaryDirectory() as tmp:
-        start = time.perf_counter()
+        start = phases.clock()
         run_scene(MPI.COMM_WORLD, scene, out=tmp + "/run", quiet=True)
-        wall = time.perf_counter() - start
+        wall = phases.clock() - start
     split = {label: 1000 * s for label, s in phases.seconds.items()}
     split["other"] = 1000 * wall - sum(split.values())
     return wall, split
 
 
-def worker(repeats: int) -> None:
+def worker(repeats: int, clock: str) -> None:
     """Print one JSON line per measured run of every case (after a warming run each)."""
-    phases = Phases()
+    phases = Phases(CLOCKS[clock])
     phases.install()
     for label, m, n, dt in CASES:
         for one_step in (True, False):
@@ -127,13 +133,13 @@ def worker(repeats: int) -> None:
                 print(json.dumps(sample), flush=True)
 
 
-def collect(trees: dict[str, str], repeats: int, rounds: int) -> dict[str, list[dict]]:
+def collect(trees: dict[str, str], repeats: int, rounds: int, clock: str) -> dict[str, list[dict]]:
     """The samples of every tree, from ``rounds`` alternating worker processes each."""
     samples: dict[str, list[dict]] = {tree: [] for tree in trees}
     env = dict(os.environ, OMP_NUM_THREADS="1")
     for _ in range(rounds):
         for tree, python in trees.items():
-            command = [python, __file__, "--worker", "--repeats", str(repeats)]
+            command = [python, __file__, "--worker", "--repeats", str(repeats), "--clock", clock]
             done = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
             samples[tree] += [json.loads(line) for line in done.stdout.splitlines() if line]
     return samples
@@ -209,15 +215,17 @@ def main():
     parser = benchlib.parser(__doc__, repeats=5)
     parser.add_argument("--rounds", type=int, default=2, help="worker processes per tree")
     parser.add_argument("--baseline", help="interpreter of a baseline checkout")
+    parser.add_argument("--clock", choices=sorted(CLOCKS), default="wall")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        worker(args.repeats)
+        worker(args.repeats, args.clock)
         return
     trees = {"this": sys.executable}
     if args.baseline:
         trees["baseline"] = args.baseline
-    rows = report(collect(trees, args.repeats, args.rounds))
+    print(f"clock: {args.clock}")
+    rows = report(collect(trees, args.repeats, args.rounds, args.clock))
     print("\nwrote", benchlib.write_csv(args.out, "bench_fixed_costs.csv", rows))
 
 
