@@ -99,8 +99,8 @@ def _copy(cloud: NodeCloud) -> NodeCloud:
 
 def recall(key: str | None) -> NodeCloud | None:
     """A copy of the cloud kept in memory under ``key``, or None."""
-    cloud = _MEMORY.get(key) if key is not None else None
-    if cloud is None:
+    cloud = None if key is None else _MEMORY.get(key)
+    if key is None or cloud is None:
         return None
     _MEMORY.move_to_end(key)
     return _copy(cloud)
