@@ -24,15 +24,23 @@ from parefg.discretization import assembly_kernels as kernels
 from parefg.discretization.mls import ShapeValues
 
 
-def _sorted_neighbours(shape: ShapeValues, n_nodes: int):
+def sorted_slots(shape: ShapeValues, n_nodes: int):
     """Each point's neighbour slots ordered by node, padding last: (order, nodes, mask).
 
-    Sorted columns make the CSR arrays of the point operators final as built.
+    ``order`` holds flat slot indices (:func:`gather`).  Sorted columns make the CSR
+    arrays of the point operators final as built.
     """
     keys = np.where(shape.mask, shape.neighbours, n_nodes)  # (n_points, n_max)
     order = np.argsort(keys, axis=1, kind="stable")
-    nodes = np.take_along_axis(shape.neighbours, order, axis=1)
-    return order, nodes, np.take_along_axis(shape.mask, order, axis=1)
+    order += np.arange(0, order.size, max(order.shape[1], 1)).reshape(-1, 1)  # flat
+    return order, gather(shape.neighbours, order), gather(shape.mask, order)
+
+
+def gather(array: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """``array`` (n_points, n_max, ...) with its slots in the flat ``order`` of
+    :func:`sorted_slots`: np.take_along_axis along axis 1, by one flat take."""
+    flat = array.reshape(array.shape[0] * array.shape[1], *array.shape[2:])
+    return np.take(flat, order, axis=0)
 
 
 def _point_rows(nodes, mask, data, components, stride, n_cols) -> sp.csr_matrix:
@@ -52,14 +60,15 @@ def _point_rows(nodes, mask, data, components, stride, n_cols) -> sp.csr_matrix:
     )
 
 
-def value_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
+def value_operator(shape: ShapeValues, n_nodes: int, slots=None) -> sp.csr_matrix:
     """(n_points x n_nodes) scalar values S[q, I] = phi_I(x_q), columns sorted.
 
     It acts on each displacement component: the interleaved operator is kron(S, I_2)
-    (:class:`~parefg.discretization.point_set.PointSet`).
+    (:class:`~parefg.discretization.point_set.PointSet`).  ``slots``: the
+    :func:`sorted_slots` of ``shape`` if the caller has them.
     """
-    order, nodes, mask = _sorted_neighbours(shape, n_nodes)
-    phi = np.take_along_axis(shape.phi, order, axis=1)[:, None, :]  # (n_points, 1, n_max)
+    order, nodes, mask = sorted_slots(shape, n_nodes) if slots is None else slots
+    phi = gather(shape.phi, order)[:, None, :]  # (n_points, 1, n_max)
     return _point_rows(nodes, mask, phi, np.zeros(1, dtype=np.int64), 1, n_nodes)
 
 
@@ -71,8 +80,8 @@ def gradient_operator(shape: ShapeValues, n_nodes: int) -> sp.csr_matrix:
     """
     if shape.dphi is None:
         raise ValueError("gradient_operator needs shape values evaluated with gradients")
-    order, nodes, mask = _sorted_neighbours(shape, n_nodes)
-    dphi = np.take_along_axis(shape.dphi, order[:, :, None], axis=1)  # (n_points, n_max, 2)
+    order, nodes, mask = sorted_slots(shape, n_nodes)
+    dphi = gather(shape.dphi, order)  # (n_points, n_max, 2)
     per_row = dphi.transpose(0, 2, 1)[:, [0, 1, 0, 1], :]  # (n_points, 4, n_max): d = 0, 1, 0, 1
     return _point_rows(nodes, mask, per_row, np.array([0, 0, 1, 1]), 2, 2 * n_nodes)
 

@@ -112,6 +112,7 @@ class BoundaryOperators:
                     scene.discretization.quadrature,
                     scene.material.lam,
                     scene.material.mu,
+                    edge_values=(quadrature.points, shape),
                 )
             beta = np.repeat(
                 per_segment, scene.discretization.quadrature

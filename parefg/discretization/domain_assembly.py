@@ -11,6 +11,11 @@ walks blocks of consecutive cells twice, so that only one block's exist at a tim
    (:func:`~parefg.discretization.assembly_kernels.gram_groups`, group by group) and
    written into its rows of the value operator S[q, I] = phi_I(x_q).
 
+A domain of one block reuses pass 1's neighbour lists in pass 2, and a small domain
+(the padded shape gradients within ``KEEP_GRADIENT_BYTES``) keeps its shape gradients
+for the error norms (:class:`~parefg.discretization.point_gradients.PointGradients`),
+which would otherwise evaluate MLS at the same points again.
+
 Groups (cells) are added in the order of :meth:`Coupling.gram
 <parefg.discretization.assembly.Coupling.gram>` over all points, and every point's shape
 functions are those of one MLS call over all of them, so the sums are the same to the
@@ -24,12 +29,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from parefg.discretization import assembly_kernels as kernels
-from parefg.discretization.assembly import value_operator
+from parefg.discretization.assembly import sorted_slots, value_operator
 from parefg.discretization.mls import MLS
+from parefg.discretization.point_gradients import sorted_gradients
 from parefg.discretization.quadrature import Quadrature
 
 # Points per block: bounds the block's shape arrays and pairs (tens of MB at m = 2).
 BLOCK_POINTS = 65536
+
+# The kept gradients of a small domain (20 bytes per point and padded neighbour, per rank):
+# their MLS costs more than their memory only on small clouds, where the fixed costs matter.
+KEEP_GRADIENT_BYTES = 16_000_000
 
 
 @dataclass
@@ -44,6 +54,7 @@ class DomainOperators:
     value_indices: np.ndarray  # (n_slots,) int32 nodes
     value_data: np.ndarray  # (n_slots,) phi
     condition_range: tuple[float, float]  # min, max MLS moment condition number
+    gradients: list[tuple[np.ndarray, np.ndarray]] | None  # sorted_gradients per block, if kept
 
 
 def _blocks(cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -83,6 +94,26 @@ class _BlockPasses:
         self.n_nodes = len(mls.nodes)
         bounds, self.group_start = _blocks(quadrature.cell)
         self.blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+        self.searched: list[tuple | None] = [None] * len(self.blocks)  # of a one-block domain
+        self.padded_slots = 0  # points x padded neighbours over all blocks
+
+    def block_pairs(self, index: int) -> tuple:
+        """(neighbours, mask, node_start, nodes, pairs) of block ``index`` (see _pairs):
+        pass 1's for a domain of one block (its arrays exist in pass 2 anyway), else
+        searched again."""
+        found = self.searched[index]
+        if found is not None:
+            self.searched[index] = None  # pass 2 takes them
+            return found
+        first, last = self.blocks[index]
+        with self.timer("neighbours"):
+            neighbours, mask = self.mls.find_neighbours(self.quadrature.points[first:last])
+        with self.timer("assembly"):
+            pairs = _pairs(neighbours, mask, self.groups_of(first, last), self.n_nodes)
+        found = (neighbours, mask, *pairs)
+        if len(self.blocks) == 1:
+            self.searched[index] = found
+        return found
 
     def groups_of(self, first: int, last: int) -> np.ndarray:
         """The block's group starts, relative to its first point."""
@@ -91,16 +122,13 @@ class _BlockPasses:
 
     def pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pass 1: the scalar pattern (indptr, indices) and the row lengths of S."""
-        mls, points, n_nodes, timer = self.mls, self.quadrature.points, self.n_nodes, self.timer
+        points, n_nodes, timer = self.quadrature.points, self.n_nodes, self.timer
         rows, cols = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
         row_lengths = np.zeros(len(points), dtype=np.int64)
-        for first, last in self.blocks:
-            with timer("neighbours"):
-                neighbours, mask = mls.find_neighbours(points[first:last])
+        for index, (first, last) in enumerate(self.blocks):
+            neighbours, mask, *_, (_, _, pair_row, pair_col) = self.block_pairs(index)
+            self.padded_slots += neighbours.size
             with timer("assembly"):
-                *_, (_, _, pair_row, pair_col) = _pairs(
-                    neighbours, mask, self.groups_of(first, last), n_nodes
-                )
                 block_ptr, block_indices, _ = kernels.pairs_to_csr(pair_row, pair_col, n_nodes)
                 rows.append(np.repeat(np.arange(n_nodes), np.diff(block_ptr)))
                 cols.append(block_indices)
@@ -115,6 +143,8 @@ class _BlockPasses:
         """Pass 2: MLS per block, its Gram contributions and its rows of S."""
         mls, quadrature, n_nodes, timer = self.mls, self.quadrature, self.n_nodes, self.timer
         points = quadrature.points
+        keep = self.padded_slots * 20 <= KEEP_GRADIENT_BYTES  # int32 node + 2 float64 each
+        kept = []
         with timer("assembly"):
             mass = np.zeros((len(indices), 1, 1))
             gradient_gram = np.zeros((len(indices), 2, 2))
@@ -122,18 +152,17 @@ class _BlockPasses:
             value_indices = np.empty(value_indptr[-1], dtype=np.int32)
             value_data = np.empty(value_indptr[-1])
         low, high = np.inf, 0.0
-        for first, last in self.blocks:
-            with timer("neighbours"):
-                neighbours, mask = mls.find_neighbours(points[first:last])
+        for index, (first, last) in enumerate(self.blocks):
+            searched = self.block_pairs(index)
+            neighbours, mask, node_start, nodes, (pair_start, pair_local, pair_row, pair_col) = (
+                searched
+            )
             with timer("mls"):
                 block = points[first:last]
                 shape = mls.evaluate(block, gradients=True, neighbours=(neighbours, mask))
             low, high = min(low, shape.condition.min()), max(high, shape.condition.max())
             with timer("assembly"):
                 groups = self.groups_of(first, last)
-                node_start, nodes, (pair_start, pair_local, pair_row, pair_col) = _pairs(
-                    neighbours, mask, groups, n_nodes
-                )
                 position = kernels.pair_positions(indptr, indices, pair_row, pair_col)
                 weights = quadrature.weights[first:last]
                 local_of = np.zeros(n_nodes, dtype=np.int64)
@@ -145,8 +174,13 @@ class _BlockPasses:
                 kernels.gram_groups(
                     dphi, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
                 )
-                piece = value_operator(shape, n_nodes)  # the block's rows, columns sorted
+                slots = sorted_slots(shape, n_nodes)
+                piece = value_operator(shape, n_nodes, slots)  # the block's rows, columns sorted
                 value_indices[value_indptr[first] : value_indptr[last]] = piece.indices
                 value_data[value_indptr[first] : value_indptr[last]] = piece.data
+                if keep:
+                    kept.append(sorted_gradients(shape, n_nodes, slots))
         values = (value_indptr, value_indices, value_data)
-        return DomainOperators(indptr, indices, mass, gradient_gram, *values, (low, high))
+        return DomainOperators(
+            indptr, indices, mass, gradient_gram, *values, (low, high), kept if keep else None
+        )

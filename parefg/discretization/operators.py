@@ -22,7 +22,7 @@ from parefg.discretization.budget import Budget, check_problem_size
 from parefg.discretization.dirichlet import DirichletPart
 from parefg.discretization.domain_assembly import assemble_domain
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
-from parefg.discretization.point_gradients import PointGradients
+from parefg.discretization.point_gradients import PointGradients, sorted_gradients
 from parefg.discretization.point_set import PointSet, point_operator
 from parefg.discretization.quadrature import Quadrature, cell_quadrature
 from parefg.geometry.cloud import NodeCloud
@@ -193,7 +193,9 @@ class _Builder(BoundaryOperators):
                 weights=quadrature.weights,
                 normals=None,
                 values=point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes),
-                gradients=PointGradients(self.mls, quadrature.points, keep=False),
+                gradients=PointGradients(
+                    self.mls, quadrature.points, keep=False, kept=operators.gradients
+                ),
             )
         return domain, mass, stiffness
 
@@ -255,12 +257,16 @@ class _Builder(BoundaryOperators):
         """The PointSet of ``quadrature``: its value operator, and its gradients if asked.
 
         ``keep_gradients`` keeps the shape gradients once used (the nodes: output steps
-        evaluate them again); else they are re-evaluated per use (the domain: error norms).
+        evaluate them again), starting from those of ``shape`` if it has them; else they
+        are re-evaluated per use.
         """
         local = value_operator(shape, self.n_nodes)
         csr = (local.indptr, local.indices, local.data)
         values = point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes)
-        source = PointGradients(self.mls, quadrature.points, keep=keep_gradients)
+        kept = None
+        if keep_gradients and shape.dphi is not None:
+            kept = [sorted_gradients(shape, self.n_nodes)]
+        source = PointGradients(self.mls, quadrature.points, keep=keep_gradients, kept=kept)
         return PointSet(
             points=quadrature.points,
             weights=quadrature.weights,
@@ -271,10 +277,14 @@ class _Builder(BoundaryOperators):
         )
 
     def _node_points(self) -> PointSet:
-        """u_h and its gradient at this rank's own nodes (MLS does not interpolate)."""
+        """u_h and its gradient at this rank's own nodes (MLS does not interpolate).
+
+        The shape gradients are evaluated with the values when von Mises stresses are
+        output (every run writes its final step), else never.
+        """
         start, stop = self.node_ranges[self.comm.rank], self.node_ranges[self.comm.rank + 1]
         points = self.cloud.coords[start:stop]
-        shape = self._shape(points, gradients=False)  # gradients: PointGradients, on use
+        shape = self._shape(points, gradients="von_mises" in self.scene.output.fields)
         with phase(self.timings, "assembly"):
             quadrature = Quadrature(
                 points=points,

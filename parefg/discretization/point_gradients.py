@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from parefg.discretization.mls import MLS
+from parefg.discretization.assembly import gather, sorted_slots
+from parefg.discretization.mls import MLS, ShapeValues
 
 # Points per MLS block: bounds the transient shape arrays (a few MB at m = 2).
 BLOCK_POINTS = 4096
@@ -29,26 +30,26 @@ class PointGradients:
 
     ``keep`` stores each block's sorted neighbours and shape gradients after the first use
     (compact: 20 bytes per point and neighbour), for point sets evaluated repeatedly (the
-    nodes, at output steps); otherwise nothing is stored between calls.
+    nodes, at output steps); otherwise nothing is stored between calls.  ``kept`` passes
+    those blocks (:func:`sorted_gradients` of consecutive runs of the points, in order)
+    when the builder has already evaluated the shape gradients at the points.
     """
 
-    def __init__(self, mls: MLS, points: np.ndarray, keep: bool):
-        self.mls, self.points, self.keep = mls, points, keep
-        self.kept: list[tuple[np.ndarray, np.ndarray]] | None = None  # (nodes, dphi) per block
+    def __init__(
+        self,
+        mls: MLS,
+        points: np.ndarray,
+        keep: bool,
+        kept: list[tuple[np.ndarray, np.ndarray]] | None = None,
+    ):
+        self.mls, self.points, self.keep = mls, points, keep or kept is not None
+        self.kept = kept  # (nodes, dphi) per block
         self._reached: np.ndarray | None = None  # sorted nodes the points reach (kept sets)
 
     def _block(self, start: int) -> tuple[np.ndarray, np.ndarray]:
-        """(nodes, dphi) of the block at ``start``: neighbours sorted by node, padding last.
-
-        nodes (n_block, n_max) int32, dphi (n_block, n_max, 2); dphi is 0 at padding.
-        """
+        """:func:`sorted_gradients` of the block at ``start``."""
         points = self.points[start : start + BLOCK_POINTS]
-        shape = self.mls.evaluate(points, gradients=True)
-        assert shape.dphi is not None  # evaluated with gradients
-        keys = np.where(shape.mask, shape.neighbours, len(self.mls.nodes))  # padding last
-        order = np.argsort(keys, axis=1, kind="stable")
-        nodes = np.take_along_axis(shape.neighbours, order, axis=1).astype(np.int32)
-        return nodes, np.take_along_axis(shape.dphi, order[:, :, None], axis=1)
+        return sorted_gradients(self.mls.evaluate(points, gradients=True), len(self.mls.nodes))
 
     def _blocks(self):
         """The blocks in order (kept ones, or freshly evaluated)."""
@@ -65,10 +66,14 @@ class PointGradients:
             self.kept = kept
 
     def _reached_nodes(self) -> np.ndarray:
-        """Sorted nodes the points' neighbour lists hold (kept for kept sets).  Not collective."""
+        """Sorted nodes the points' neighbour lists hold (kept for kept sets; from the kept
+        blocks, padding included, once they exist).  Not collective."""
         if self._reached is not None:
             return self._reached
         parts = [np.zeros(0, dtype=np.int64)]
+        if self.kept is not None:
+            self._reached = np.unique(np.concatenate([*parts, *(n.ravel() for n, _ in self.kept)]))
+            return self._reached
         for start in range(0, len(self.points), BLOCK_POINTS):
             neighbours, mask = self.mls.find_neighbours(self.points[start : start + BLOCK_POINTS])
             parts.append(np.unique(neighbours[mask]))
@@ -94,6 +99,18 @@ class PointGradients:
                     out[start:stop, c, d] = _pairwise_row_sums(dphi[:, :, d] * values)
             start = stop
         return out
+
+
+def sorted_gradients(shape: ShapeValues, n_nodes: int, slots=None) -> tuple[np.ndarray, np.ndarray]:
+    """(nodes, dphi) of ``shape`` (with gradients): neighbours sorted by node, padding last.
+
+    nodes (n_points, n_max) int32, dphi (n_points, n_max, 2); dphi is 0 at padding.
+    ``slots``: the :func:`~parefg.discretization.assembly.sorted_slots` of ``shape`` if
+    the caller has them.
+    """
+    assert shape.dphi is not None  # evaluated with gradients
+    order, nodes, _ = sorted_slots(shape, n_nodes) if slots is None else slots
+    return nodes.astype(np.int32), gather(shape.dphi, order)
 
 
 def _pairwise_row_sums(products: np.ndarray) -> np.ndarray:

@@ -96,17 +96,25 @@ def _local_gradients(shape: ShapeValues, rows: slice, columns: np.ndarray) -> np
     local = np.searchsorted(columns, neighbours)
     out = np.zeros((len(mask), len(columns), 2))
     points = np.broadcast_to(np.arange(len(mask))[:, None], mask.shape)
-    np.add.at(out, (points[mask], local[mask]), dphi[mask])
+    out[points[mask], local[mask]] = dphi[mask]  # a point lists each node once
     return out
 
 
 def trace_inverse_constants(
-    mls: MLS, cloud: NodeCloud, segment_ids: np.ndarray, order: int, lam: float, mu: float
+    mls: MLS,
+    cloud: NodeCloud,
+    segment_ids: np.ndarray,
+    order: int,
+    lam: float,
+    mu: float,
+    edge_values: tuple[np.ndarray, ShapeValues] | None = None,
 ) -> np.ndarray:
     """C_e of each segment in ``segment_ids`` (see the module docstring), (n_segments,).
 
     ``order``: Gauss points per segment (the run's); the cell rule of B has
-    max(order + 3, ESTIMATE_QUADRATURE) points per direction.
+    max(order + 3, ESTIMATE_QUADRATURE) points per direction.  ``edge_values`` = (points,
+    shape with gradients) the caller has evaluated on the segments; used if those are
+    the segments' Gauss points, else MLS is evaluated there.
     """
     segment_ids = np.asarray(segment_ids, dtype=np.int64)
     if len(segment_ids) == 0:  # a rank without segments of the part
@@ -129,7 +137,10 @@ def trace_inverse_constants(
     edge_rule = segment_quadrature(cloud.coords, cloud.segments, order, segment_ids=segment_ids)
     assert edge_rule.normals is not None
     cell_shape = mls.evaluate(cell_rule.points, gradients=True)
-    edge_shape = mls.evaluate(edge_rule.points, gradients=True)
+    if edge_values is not None and np.array_equal(edge_values[0], edge_rule.points):
+        edge_shape = edge_values[1]
+    else:
+        edge_shape = mls.evaluate(edge_rule.points, gradients=True)
     elasticity = _elasticity(lam, mu)
     per_cell, constants = cell_order**2, np.empty(len(segment_ids))
     for i in range(len(segment_ids)):  # one small dense eigenproblem per segment
@@ -159,18 +170,21 @@ def nitsche_beta(
     order: int,
     lam: float,
     mu: float,
+    edge_values: tuple[np.ndarray, ShapeValues] | None = None,
 ) -> np.ndarray:
     """The coercivity bound 2 C_e n_c of each segment in ``segment_ids``, (n_segments,).
 
     n_c counts the segments of ``nitsche_segments`` (every Nitsche segment of the cloud)
     that bound the same cell: a corner cell with two Nitsche edges shares its energy
-    a_{omega_e} between their two estimates.
+    a_{omega_e} between their two estimates.  ``edge_values``: as for
+    :func:`trace_inverse_constants`.
     """
     if len(segment_ids) == 0:
         return np.zeros(0)
     shared = np.bincount(adjacent_cells(cloud, nitsche_segments))
     count = shared[adjacent_cells(cloud, np.asarray(segment_ids, dtype=np.int64))]
-    return 2.0 * count * trace_inverse_constants(mls, cloud, segment_ids, order, lam, mu)
+    constants = trace_inverse_constants(mls, cloud, segment_ids, order, lam, mu, edge_values)
+    return 2.0 * count * constants
 
 
 def _largest_generalized(a: np.ndarray, b: np.ndarray) -> float:

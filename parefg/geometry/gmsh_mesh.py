@@ -79,11 +79,15 @@ def build_node_cloud(
 
 def _jittered_mesh(domain: dict, h: float, cells: str, jitter: float, seed: int, budget):
     """:func:`build_node_cloud` on one rank: the meshed (or cached), jittered cloud."""
-    key = mesh_cache.mesh_key(domain, h, cells)
-    cloud = mesh_cache.load(key)
+    in_memory = mesh_cache.memory_key(domain, h, cells)
+    cloud = mesh_cache.recall(in_memory)
     if cloud is None:
-        cloud = mesh_domain(domain, h, cells, budget)
-        mesh_cache.store(key, cloud)
+        key = mesh_cache.mesh_key(domain, h, cells)
+        cloud = mesh_cache.load(key)
+        if cloud is None:
+            cloud = mesh_domain(domain, h, cells, budget)
+            mesh_cache.store(key, cloud)
+        mesh_cache.remember(in_memory, cloud)
     return jitter_cloud(cloud, jitter, seed)
 
 

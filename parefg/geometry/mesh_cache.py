@@ -10,8 +10,14 @@ outline the scene alone defines are cached; a .geo domain (whose file and budget
 reads) is meshed every time.
 
 Entries are .npz files read without pickle (arrays only); anything unreadable is a
-miss.  Directory: ``meshes/`` of :func:`parefg.user_cache.cache_dir`; ``PAREFG_CACHE=0``
-turns it off.  Not collective (rank 0 meshes).
+miss.  Directory: ``meshes/`` of :func:`parefg.user_cache.cache_dir`.  Not collective
+(rank 0 meshes).
+
+Within a process, the last ``MEMORY_ENTRIES`` small clouds (``MEMORY_NODES`` nodes at
+most) are also kept in memory, keyed by the same inputs (the code is the process's):
+repeated runs of one scene in a process (sweeps, benchmarks, in-process drivers) mesh
+once.  Both return copies, which the caller may modify.  ``PAREFG_CACHE=0`` turns both
+off.
 """
 
 import dataclasses
@@ -20,6 +26,7 @@ import importlib.util
 import json
 import os
 import zipfile
+from collections import OrderedDict
 
 import numpy as np
 
@@ -40,14 +47,17 @@ def _gmsh_identity() -> str:
     return f"{spec.origin}:{stat.st_size}:{stat.st_mtime_ns}"
 
 
+def _outlined(domain: dict) -> bool:
+    """Whether the scene alone defines the domain's outline (a built-in shape)."""
+    name = domain.get("shape")
+    shape = SHAPES.get(name) if isinstance(name, str) else None
+    return shape is not None and shape.outline is not None
+
+
 def mesh_key(domain: dict, h: float, cells: str) -> str | None:
     """The cache key of one mesh, or None when it is not cached (a .geo domain, or the
     cache is off: the key reads the package source, which a run need not pay for)."""
-    if user_cache.cache_dir("meshes") is None:
-        return None
-    name = domain.get("shape")
-    shape = SHAPES.get(name) if isinstance(name, str) else None
-    if shape is None or shape.outline is None:
+    if user_cache.cache_dir("meshes") is None or not _outlined(domain):
         return None
     identity = {
         "format": FORMAT,
@@ -64,6 +74,52 @@ def mesh_key(domain: dict, h: float, cells: str) -> str | None:
 # Meshing costs more than reading only on small clouds, where start-up matters; bounding
 # the entries (~50 B per node) keeps a sweep of fine clouds from filling the disk.
 MAX_CACHED_NODES = 200_000
+
+
+# The in-process layer: a few small clouds (~50 B per node each), most recent last.
+MEMORY_ENTRIES = 8
+MEMORY_NODES = 50_000
+_MEMORY: OrderedDict[str, NodeCloud] = OrderedDict()
+
+
+def memory_key(domain: dict, h: float, cells: str) -> str | None:
+    """The in-process key of one mesh, or None when it is not kept (a .geo domain, or
+    PAREFG_CACHE=0)."""
+    if os.environ.get("PAREFG_CACHE") == "0" or not _outlined(domain):
+        return None
+    return json.dumps(
+        {"domain": domain, "h": float(h), "cells": cells}, sort_keys=True, default=str
+    )
+
+
+def _copy(cloud: NodeCloud) -> NodeCloud:
+    arrays = {name: getattr(cloud, name).copy() for name in ARRAYS}
+    return NodeCloud(part_names=list(cloud.part_names), **arrays)
+
+
+def recall(key: str | None) -> NodeCloud | None:
+    """A copy of the cloud kept in memory under ``key``, or None."""
+    cloud = None if key is None else _MEMORY.get(key)
+    if key is None or cloud is None:
+        return None
+    _MEMORY.move_to_end(key)
+    return _copy(cloud)
+
+
+def remember(key: str | None, cloud: NodeCloud) -> None:
+    """Keep a copy of ``cloud`` in memory under ``key`` (dropping the oldest beyond the
+    bound); nothing when key is None or the cloud is large."""
+    if key is None or cloud.n_nodes > MEMORY_NODES:
+        return
+    _MEMORY[key] = _copy(cloud)
+    _MEMORY.move_to_end(key)
+    while len(_MEMORY) > MEMORY_ENTRIES:
+        _MEMORY.popitem(last=False)
+
+
+def forget() -> None:
+    """Empty the in-process layer."""
+    _MEMORY.clear()
 
 
 def load(key: str | None) -> NodeCloud | None:

@@ -31,6 +31,7 @@ def cache(tmp_path, monkeypatch):
     root = COMM.bcast(str(tmp_path))
     monkeypatch.setenv("PAREFG_CACHE_DIR", root)
     monkeypatch.delenv("PAREFG_CACHE", raising=False)
+    mesh_cache.forget()  # no cloud of an earlier test in this process's memory
     return Path(root) / "meshes"
 
 
@@ -96,6 +97,7 @@ def test_a_cloud_over_the_size_bound_is_not_kept(cache, monkeypatch):
     build_node_cloud(COMM, {"shape": "square"}, 0.25)
     assert not cache.exists() or list(cache.glob("*.npz")) == []
     monkeypatch.setattr(mesh_cache, "MAX_CACHED_NODES", 25)
+    mesh_cache.forget()  # meshed again, not recalled from memory
     build_node_cloud(COMM, {"shape": "square"}, 0.25)
     assert COMM.bcast(len(list(cache.glob("*.npz")))) == 1
 
@@ -114,3 +116,61 @@ def test_the_user_cache_is_opt_in(tmp_path, monkeypatch):
     assert user_cache.cache_dir("meshes") == tmp_path / "mine" / "meshes"
     monkeypatch.setenv("PAREFG_CACHE", "0")
     assert user_cache.cache_dir("meshes") is None
+
+
+# ---------------------------------------------------------------------- the in-process layer
+
+
+@pytest.fixture
+def memory(monkeypatch):
+    """The in-process layer alone (no cache directory), empty."""
+    monkeypatch.delenv("PAREFG_CACHE_DIR", raising=False)
+    monkeypatch.delenv("PAREFG_CACHE", raising=False)
+    mesh_cache.forget()
+    yield
+    mesh_cache.forget()
+
+
+def test_memory_returns_the_same_cloud_as_a_copy(memory, monkeypatch):
+    meshed = build_node_cloud(COMM, {"shape": "square"}, 0.25)
+    reference = gmsh_mesh.mesh_domain({"shape": "square"}, 0.25)
+    meshed.coords[:] = -1.0  # the caller's copy: the kept cloud stays
+    monkeypatch.setattr(gmsh_mesh, "mesh_domain", no_meshing)
+    again = build_node_cloud(COMM, {"shape": "square"}, 0.25)
+    assert_same_cloud(again, reference)
+    assert again.coords is not build_node_cloud(COMM, {"shape": "square"}, 0.25).coords
+
+
+@pytest.mark.parametrize(
+    "other",
+    [
+        ({"shape": "square"}, 0.2, "quad"),
+        ({"shape": "square"}, 0.25, "tri"),
+        ({"shape": "rectangle", "size": [2.0, 1.0]}, 0.25, "quad"),
+    ],
+    ids=["h", "cells", "domain"],
+)
+def test_memory_misses_for_other_inputs(memory, other):
+    build_node_cloud(COMM, {"shape": "square"}, 0.25)
+    domain, h, cells = other
+    assert_same_cloud(build_node_cloud(COMM, domain, h, cells), gmsh_mesh.mesh_domain(*other))
+
+
+def test_memory_is_off_with_the_cache(memory, monkeypatch):
+    monkeypatch.setenv("PAREFG_CACHE", "0")
+    build_node_cloud(COMM, {"shape": "square"}, 0.25)
+    assert mesh_cache.memory_key({"shape": "square"}, 0.25, "quad") is None
+    monkeypatch.setattr(gmsh_mesh, "mesh_domain", no_meshing)
+    with pytest.raises((AssertionError, RuntimeError), match="meshed although cached"):
+        build_node_cloud(COMM, {"shape": "square"}, 0.25)
+
+
+def test_memory_keeps_the_most_recent_few(memory, monkeypatch):
+    monkeypatch.setattr(mesh_cache, "MEMORY_ENTRIES", 2)
+    for h in (0.5, 0.4, 0.25):
+        build_node_cloud(COMM, {"shape": "square"}, h)
+    monkeypatch.setattr(gmsh_mesh, "mesh_domain", no_meshing)
+    build_node_cloud(COMM, {"shape": "square"}, 0.25)  # kept
+    build_node_cloud(COMM, {"shape": "square"}, 0.4)  # kept
+    with pytest.raises((AssertionError, RuntimeError), match="meshed although cached"):
+        build_node_cloud(COMM, {"shape": "square"}, 0.5)  # dropped
