@@ -141,11 +141,18 @@ def test_concurrent_writers_and_readers(cache):
         for _ in range(30):
             scene_cache.store(key, data)
 
-    def read():
-        for _ in range(60):
-            seen.append(scene_cache.load(key))
+    writers = [threading.Thread(target=write) for _ in range(2)]
 
-    threads = [threading.Thread(target=f) for f in (write, write, read)]
+    def read():
+        # until both writers are done (on a loaded machine 60 reads can all come before
+        # the first store has finished), then once more: that read must see the entry
+        while any(writer.is_alive() for writer in writers) or len(seen) < 60:
+            seen.append(scene_cache.load(key))
+        for writer in writers:
+            writer.join()
+        seen.append(scene_cache.load(key))
+
+    threads = [*writers, threading.Thread(target=read)]
     for thread in threads:
         thread.start()
     for thread in threads:
