@@ -32,7 +32,7 @@ class ContactFrame:
         ``values`` (scalar n_c x n_nodes PETSc).
     """
 
-    def __init__(self, comm, points):
+    def __init__(self, comm, points) -> None:
         self.comm = comm
         self.weights = points.weights  # (n_c,)
         self.points = points.points  # (n_c, 2)
