@@ -38,12 +38,12 @@ The reused-factorization step (:meth:`ContactStepSolver._reused_step`): most ste
 one Newton step on the kept factorization that lands on the linear piece it started from.
 Under the default SNES configuration (newtonls, the basic undamped line search, an exact
 solve, nothing monitored or viewed; see :func:`_reused_step_allowed`) that step is taken
-without SNES, whose own calls cost several times the solve at a few hundred DOFs: the
-same residual, the same KSP solve with the kept factorization and the same descent and
-piece tests, so it accepts exactly the steps SNES would accept at its first iteration,
-with the same bits.  Any other case -- the active set at u_0 is not the one the
-factorization was built for, a non-affine piece, a failed or non-descent solve, a step
-that leaves its piece -- goes to SNES from the unchanged u_0.
+without SNES's machinery (measured on square, m = 2, h = 1/8: 0.85 against 0.95 ms per
+step, the factored solve ~0.1 ms): the same residual, the same KSP solve with the kept
+factorization and the same descent and piece tests, so it accepts exactly the steps SNES
+would accept at its first iteration, with the same bits.  Any other case -- the active
+set at u_0 is not the one the factorization was built for, a non-affine piece, a failed
+or non-descent solve, a step that leaves its piece -- goes to SNES from the unchanged u_0.
 """
 
 from __future__ import annotations
