@@ -10,8 +10,10 @@ and factorizations; writes results/bench_step_np<P>.csv.  A second table splits 
 whole step into its parts (the loads, the solve, the energy row, the contact
 acceleration, the state check, the rest: predictor, right-hand side, gate, update),
 timed by wrapping the simulation's methods; its medians need not add up to the step's.
+``--compare-snes`` also times the solve with SNES taking every step (no reused-factorization
+step), interleaved with the default in one process.
 
-    .venv/bin/python scripts/bench/bench_step.py [--repeats 3]
+    .venv/bin/python scripts/bench/bench_step.py [--repeats 3] [--compare-snes]
     mpirun -n 2 .venv/bin/python scripts/bench/bench_step.py
 """
 
@@ -111,8 +113,37 @@ def step_times(comm, overrides):
     return solves, steps, units, parts, sim
 
 
+def reused_against_snes(comm, overrides):
+    """Median solve part of a step with the reused-factorization step and with SNES taking
+    every step: two simulations stepped alternately in one process (the same load on both).
+    """
+    sims = [prepare(comm, "square", overrides) for _ in range(2)]
+    sims[1].solver._reuse = False
+    states = [sim.start() for sim in sims]
+    solves: list[list[float]] = [[], []]
+    for n in range(1, sims[0].scene.time.n_steps + 1):
+        for i, sim in enumerate(sims):
+            before = sim.timings["solve"]
+            states[i] = sim.step(states[i], n)
+            solves[i].append(sim.timings["solve"] - before)
+    return [statistics.median(times) for times in solves]
+
+
+def compare_snes(comm):
+    """Print the solve part of a step with and without the reused-factorization step."""
+    rows = [(label, *reused_against_snes(comm, overrides)) for label, overrides in CASES]
+    if comm.rank == 0:
+        print("\nsolve part of a step [ms]: reused-factorization step against SNES every step\n")
+        print("| case | reused | SNES | reused / SNES |\n|---|---|---|---|")
+        for label, reused, snes in rows:
+            print(f"| {label} | {1e3 * reused:.3f} | {1e3 * snes:.3f} | {reused / snes:.2f} |")
+
+
 def main():
     parser = benchlib.parser(__doc__, repeats=3)
+    parser.add_argument(
+        "--compare-snes", action="store_true", help="also time the steps SNES takes alone"
+    )
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     rows, part_rows = [], []
@@ -171,6 +202,8 @@ def main():
             print(f"| {r['case']} | " + " | ".join(f"{1e3 * r[n]:.3f}" for n in names) + " |")
         benchlib.write_csv(args.out, f"bench_step_np{comm.size}.csv", rows)
         benchlib.write_csv(args.out, f"bench_step_parts_np{comm.size}.csv", part_rows)
+    if args.compare_snes:
+        compare_snes(comm)
 
 
 if __name__ == "__main__":
