@@ -338,15 +338,19 @@ class ContactLaw(ContactFrame):
 
     def normal_energy(self, un) -> float:
         """alpha_C/2 ||(u_nu - s)^+||^2 on Gamma_C.  Collective."""
-        local = np.dot(self.weights, self._normal_potential(un))
-        return self.comm.allreduce(local, op=MPI.SUM)
+        return self.comm.allreduce(self.local_normal_energy(un), op=MPI.SUM)
 
-    def stored_friction_energy(self, ut) -> float:
-        """alpha_T/2 |u_tau - xi|^2 after the slip update (friction spring energy).  Collective."""
+    def local_normal_energy(self, un) -> float:
+        """This rank's share of :meth:`normal_energy`.  Not collective."""
+        return float(np.dot(self.weights, self._normal_potential(un)))
+
+    def local_friction_energy(self, ut) -> float:
+        """This rank's share of alpha_T/2 |u_tau - xi|^2 after the slip update (the friction
+        spring energy).  Not collective."""
         if not self.has_friction:
             return 0.0
         z = ut - self.slip
-        return self.comm.allreduce(np.dot(self.weights, 0.5 * self.alpha_t * z**2), op=MPI.SUM)
+        return float(np.dot(self.weights, 0.5 * self.alpha_t * z**2))
 
     def directional(self, un, ut, d_nu, d_tau, step) -> tuple[float, float]:
         """Derivative and slope of the contact energy along u + step d.  Collective.
@@ -363,7 +367,10 @@ class ContactLaw(ContactFrame):
         slope = np.dot(self.weights, self.step_slope(un_s) * d_nu**2)
         if self.has_friction:
             slope += np.dot(self.weights, self.alpha_t * d_tau**2 * ~self._sliding(ut_s))
-        return tuple(self.comm.allreduce(np.array([value, slope]), op=MPI.SUM))
+        # a buffer reduction: mpi4py's object allreduce would pickle the array
+        total = np.empty(2)
+        self.comm.Allreduce(np.array([value, slope]), total, op=MPI.SUM)
+        return float(total[0]), float(total[1])
 
     def end_step(self, un, ut) -> float:
         """Record the step's status and friction force, then update the slip.
@@ -371,8 +378,9 @@ class ContactLaw(ContactFrame):
         The status is taken with the slip the step was solved with: after the return
         mapping a sliding point sits exactly at |alpha_T (u_tau - xi)| = g, where round-off
         would decide between stick and slip.  Then the return mapping
-        xi_n = u_tau - clip(u_tau - xi, -g/alpha_T, g/alpha_T).  Returns the step's
-        frictional dissipation sum_q w_q g_q |xi_n - xi_{n-1}|.  Collective.
+        xi_n = u_tau - clip(u_tau - xi, -g/alpha_T, g/alpha_T).  Returns this rank's share
+        of the step's frictional dissipation sum_q w_q g_q |xi_n - xi_{n-1}| (the caller
+        sums it with the other energies of the step).  Not collective.
         """
         self.step_status = self.status(un, ut)
         self.step_friction = self.forces(un, ut)[1]
@@ -382,7 +390,7 @@ class ContactLaw(ContactFrame):
         elastic = np.clip(z, -self.bound / self.alpha_t, self.bound / self.alpha_t)
         increment = z - elastic
         self.slip = self.slip + increment
-        return self.comm.allreduce(np.dot(self.weights, self.bound * np.abs(increment)), op=MPI.SUM)
+        return float(np.dot(self.weights, self.bound * np.abs(increment)))
 
 
 def _contact_parts(part_names: list[str], boundaries: dict) -> dict:

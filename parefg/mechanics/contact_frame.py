@@ -14,6 +14,10 @@ from petsc4py import PETSc
 
 from parefg.parallel import petsc_matrix
 
+# kept kinematics results: the accepted u survives the next step's predictor (begin_step
+# asks for it after gate has asked for the predictor)
+KEPT_KINEMATICS = 2
+
 
 class ContactFrame:
     """Weights, normals, tangents and the rotated operator of the points.  Collective.
@@ -28,7 +32,7 @@ class ContactFrame:
         ``values`` (scalar n_c x n_nodes PETSc).
     """
 
-    def __init__(self, comm, points):
+    def __init__(self, comm, points) -> None:
         self.comm = comm
         self.weights = points.weights  # (n_c,)
         self.points = points.points  # (n_c, 2)
@@ -45,13 +49,32 @@ class ContactFrame:
         )
         # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
         self._point_vec = self.operator.createVecLeft()
+        # the last KEPT_KINEMATICS results: (vector, its handle and state, (u_nu, u_tau))
+        self._kept: list[tuple[PETSc.Vec, tuple[int, int], tuple[np.ndarray, np.ndarray]]] = []
 
     def kinematics(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
-        """(u_nu, u_tau) at the points.  Collective."""
+        """(u_nu, u_tau) at the points (read-only arrays).  Collective.
+
+        A step asks for the same u several times (each Newton iterate: its residual,
+        convergence test, Jacobian and line search; the accepted u: the energy row, the
+        contact acceleration, the next step's start level), so the last results are kept
+        with the vector's PETSc object state.  Every change of the values increases the
+        state, on every rank alike (PETSc's own cached norms rely on the same), so every
+        rank takes the kept result or the collective product together.  The kept vector
+        is referenced: its handle cannot be reused by another vector meanwhile.
+        """
+        key = (u.handle, u.stateGet())
+        for kept in self._kept:
+            if kept[1] == key:
+                return kept[2]
         out = self._point_vec
         self.operator.mult(u, out)
-        values = out.getArray().reshape(-1, 2)
-        return values[:, 0].copy(), values[:, 1].copy()
+        values = out.getArray(readonly=True).reshape(-1, 2)
+        result = values[:, 0].copy(), values[:, 1].copy()
+        for array in result:
+            array.flags.writeable = False  # shared by the callers of the kept result
+        self._kept = [(u, key, result), *self._kept[: KEPT_KINEMATICS - 1]]
+        return result
 
     def point_vector(self, normal: np.ndarray) -> PETSc.Vec:
         """The work vector at the points, holding (normal_q, 0) (overwritten by later calls)."""

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.timestepping.schemes import State
@@ -48,14 +49,23 @@ class EnergyLedger:
         constant, with the work of the loads F and of the moving Dirichlet data.
         """
         previous = self.history[-1] if self.history else {}
-        dissipated = previous.get("dissipated_energy", 0.0)
-        active, contact_energy = 0, 0.0
+        # this rank's shares, summed in one reduction: dissipation, active points, normal
+        # and friction energy, Dirichlet energy and anchor work (each its own entry, so
+        # each sum is the one a reduction of its own would give)
+        local = np.zeros(6)
         if self.law is not None:
             un, ut = self.law.kinematics(new.u)
-            dissipated += self.law.end_step(un, ut)
-            active = self.comm.allreduce(int(np.count_nonzero(un > self.law.gap)))
-            contact_energy = self.law.normal_energy(un) + self.law.stored_friction_energy(ut)
-        dirichlet_energy, anchor_work = self._dirichlet_terms(new.u, t)
+            local[0] = self.law.end_step(un, ut)
+            local[1] = np.count_nonzero(un > self.law.gap)
+            local[2] = self.law.local_normal_energy(un)
+            local[3] = self.law.local_friction_energy(ut)
+        local[4:] = self._dirichlet_shares(new.u, t)
+        total = np.empty_like(local)
+        self.comm.Allreduce(local, total, op=MPI.SUM)
+        dissipated = previous.get("dissipated_energy", 0.0) + total[0]
+        active = int(total[1])
+        contact_energy = total[2] + total[3]
+        dirichlet_energy, anchor_work = total[4], total[5]
         work = previous.get("external_work", 0.0) + anchor_work
         work += self._load_work(old.u, new.u, forces)
         row = {
@@ -116,6 +126,14 @@ class EnergyLedger:
         alpha_D/2 |u_h - ubar|^2); the anchor work over the step is
         -int mean(f) . (ubar_n - ubar_{n-1}), f = -de/dubar, exact for the quadratic e.
         """
+        energy, work = self._dirichlet_shares(u, t)
+        return self.comm.allreduce(energy), self.comm.allreduce(work)
+
+    def _dirichlet_shares(self, u: PETSc.Vec, t: float) -> tuple[float, float]:
+        """This rank's shares of :meth:`_dirichlet_terms`; sets the level's ubar and force.
+
+        Collective (the traces of u).
+        """
         energy, work = 0.0, 0.0
         previous = self._dirichlet_previous
         current = {}
@@ -131,7 +149,7 @@ class EnergyLedger:
             work -= np.dot(points.weights, np.sum(mean_force * (ubar - old_ubar), axis=1))
             current[name] = (ubar, force)
         self._dirichlet_previous = current
-        return self.comm.allreduce(energy), self.comm.allreduce(work)
+        return energy, work
 
     def _quadratic(self, matrix: PETSc.Mat, x: PETSc.Vec) -> float:
         """x^T A x for a square DOF matrix A (mass, stiffness).  Collective."""

@@ -6,9 +6,14 @@ a single solve with the step operator's existing factorization (the floor of any
 one product with the step operator (the unit of a residual evaluation) and one
 evaluation of the loads F(t) (expressions at every quadrature point, integrated).
 Prints medians over the steps and repeats, the ratios step / floor, Newton iterations
-and factorizations; writes results/bench_step_np<P>.csv.
+and factorizations; writes results/bench_step_np<P>.csv.  A second table splits the
+whole step into its parts (the loads, the solve, the energy row, the contact
+acceleration, the state check, the rest: predictor, right-hand side, gate, update),
+timed by wrapping the simulation's methods; its medians need not add up to the step's.
+``--compare-snes`` also times the solve with SNES taking every step (no reused-factorization
+step), interleaved with the default in one process.
 
-    .venv/bin/python scripts/bench/bench_step.py [--repeats 3]
+    .venv/bin/python scripts/bench/bench_step.py [--repeats 3] [--compare-snes]
     mpirun -n 2 .venv/bin/python scripts/bench/bench_step.py
 """
 
@@ -26,14 +31,29 @@ from mpi4py import MPI  # noqa: E402
 
 from parefg.run import prepare  # noqa: E402
 
+
+def case(degree, n, dt):
+    """Label and overrides of the square scene at m = degree, h = 1/n."""
+    overrides = [f"discretization.degree={degree}", f"discretization.h={1.0 / n!r}"]
+    return f"m={degree} h=1/{n} dt={dt}", [*overrides, f"time.dt={dt!r}"]
+
+
+# the small sizes of the GetFEM comparison (scripts/bench/getfem_side_by_side.py), where a
+# step's Python and petsc4py calls weigh most, and the larger m = 1 and 2 cases
 CASES = [
-    (
-        "m=1 h=1/64 dt=0.025",
-        ["discretization.degree=1", "discretization.h=0.015625", "time.dt=0.025"],
-    ),
-    ("m=2 h=1/32 dt=0.025", ["discretization.h=0.03125", "time.dt=0.025"]),
-    ("m=2 h=1/48 dt=0.025", ["discretization.h=0.0208333333333", "time.dt=0.025"]),
+    *(case(degree, n, 0.0125) for degree in (2, 3) for n in (8, 16, 32)),
+    case(1, 64, 0.025),
+    case(2, 48, 0.025),
 ]
+
+# the parts of a step: the Simulation's (or its solver's) method timed for each
+PARTS = {
+    "loads": ("sim", "external_forces"),
+    "solve": ("solver", "solve"),
+    "energy row": ("sim", "_record"),
+    "contact acceleration": ("sim", "_contact_acceleration"),
+    "state check": ("sim", "_check_state"),
+}
 
 
 def median_call(comm, function, repeats=5):
@@ -47,17 +67,41 @@ def median_call(comm, function, repeats=5):
     return statistics.median(times)
 
 
+def time_parts(sim, current):
+    """Wrap the methods of :data:`PARTS` on the instances, adding their times to ``current``."""
+    for part, (owner, name) in PARTS.items():
+        target = sim if owner == "sim" else sim.solver
+        method = getattr(target, name)
+
+        def timed(*args, _method=method, _part=part, **kwargs):
+            tic = time.perf_counter()
+            try:
+                return _method(*args, **kwargs)
+            finally:
+                current[_part] += time.perf_counter() - tic
+
+        setattr(target, name, timed)
+
+
 def step_times(comm, overrides):
     """Per-step solve and whole-step times, the floor (one solve with the reused factor),
-    and the unit costs outside the solve (one operator product, one load evaluation)."""
+    the unit costs outside the solve (one operator product, one load evaluation) and the
+    parts of each step."""
     sim = prepare(comm, "square", overrides)
     scene = sim.scene
     state, solves, steps = sim.start(), [], []
+    current = dict.fromkeys(PARTS, 0.0)
+    time_parts(sim, current)
+    parts: dict[str, list[float]] = {part: [] for part in [*PARTS, "rest"]}
     for n in range(1, scene.time.n_steps + 1):
+        current.update(dict.fromkeys(PARTS, 0.0))
         before, tic = sim.timings["solve"], time.perf_counter()
         state = sim.step(state, n)
         steps.append(time.perf_counter() - tic)
         solves.append(sim.timings["solve"] - before)
+        for part, value in current.items():
+            parts[part].append(value)
+        parts["rest"].append(steps[-1] - sum(current.values()))
     ksp = sim.solver.snes.getKSP()
     rhs, x = sim.a_const.createVecs()
     rhs.set(1.0)
@@ -66,22 +110,57 @@ def step_times(comm, overrides):
         "mult": median_call(comm, lambda: sim.a_const.mult(rhs, x)),
         "forces": median_call(comm, lambda: sim.external_forces(scene.time.T, x)),
     }
-    return solves, steps, units, sim
+    return solves, steps, units, parts, sim
+
+
+def reused_against_snes(comm, overrides):
+    """Median solve part of a step with the reused-factorization step and with SNES taking
+    every step: two simulations stepped alternately in one process (the same load on both).
+    """
+    sims = [prepare(comm, "square", overrides) for _ in range(2)]
+    sims[1].solver._reuse = False
+    states = [sim.start() for sim in sims]
+    solves: list[list[float]] = [[], []]
+    for n in range(1, sims[0].scene.time.n_steps + 1):
+        for i, sim in enumerate(sims):
+            before = sim.timings["solve"]
+            states[i] = sim.step(states[i], n)
+            solves[i].append(sim.timings["solve"] - before)
+    return [statistics.median(times) for times in solves]
+
+
+def compare_snes(comm):
+    """Print the solve part of a step with and without the reused-factorization step."""
+    rows = [(label, *reused_against_snes(comm, overrides)) for label, overrides in CASES]
+    if comm.rank == 0:
+        print("\nsolve part of a step [ms]: reused-factorization step against SNES every step\n")
+        print("| case | reused | SNES | reused / SNES |\n|---|---|---|---|")
+        for label, reused, snes in rows:
+            print(f"| {label} | {1e3 * reused:.3f} | {1e3 * snes:.3f} | {reused / snes:.2f} |")
 
 
 def main():
     parser = benchlib.parser(__doc__, repeats=3)
+    parser.add_argument(
+        "--compare-snes", action="store_true", help="also time the steps SNES takes alone"
+    )
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
-    rows = []
+    rows, part_rows = [], []
     for label, overrides in CASES:
         solves, steps, units = [], [], {"floor": [], "mult": [], "forces": []}
+        parts: dict[str, list[float]] = {}
         for _ in range(args.repeats):
-            run_solves, run_steps, run_units, sim = step_times(comm, overrides)
+            run_solves, run_steps, run_units, run_parts, sim = step_times(comm, overrides)
             solves += run_solves
             steps += run_steps
             for key, value in run_units.items():
                 units[key].append(value)
+            for key, value in run_parts.items():
+                parts.setdefault(key, []).extend(value)
+        part_rows.append(
+            {"case": label, **{key: statistics.median(value) for key, value in parts.items()}}
+        )
         step, floor = statistics.median(solves), statistics.median(units["floor"])
         rows.append(
             {
@@ -115,7 +194,16 @@ def main():
                 f"{1e3 * r['load_evaluation_s']:.2f} | {r['newton_per_step']:.2f} "
                 f"| {r['factorizations']} / {r['steps']} |"
             )
+        print(f"\nparts of a step [ms], medians over all steps of {args.repeats} runs\n")
+        names = [*PARTS, "rest"]
+        print("| case | " + " | ".join(names) + " |")
+        print("|---|" + "---|" * len(names))
+        for r in part_rows:
+            print(f"| {r['case']} | " + " | ".join(f"{1e3 * r[n]:.3f}" for n in names) + " |")
         benchlib.write_csv(args.out, f"bench_step_np{comm.size}.csv", rows)
+        benchlib.write_csv(args.out, f"bench_step_parts_np{comm.size}.csv", part_rows)
+    if args.compare_snes:
+        compare_snes(comm)
 
 
 if __name__ == "__main__":

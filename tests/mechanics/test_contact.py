@@ -41,13 +41,24 @@ def global_max(values) -> float:
 
 
 def record_line_searches(solver) -> list[tuple[float, float]]:
-    """(J_n before, J_n after) of every later line search of ``solver``.  Collective.
+    """(J_n before, J_n after) of every later Newton step of ``solver``.  Collective.
 
     The solver's pre-check (its exact line search) is wrapped, so the energies are those
-    of the iterate it starts from and of the update it hands to the SNES.
+    of the iterate it starts from and of the update it hands to the SNES; so is the step
+    it takes without SNES (the reused-factorization step, one Newton step).
     """
     log, trial = [], solver.a_const.createVecRight()
     line_search = solver._exact_line_search
+    reused_step = solver._reused_step
+
+    def recorded_step(u):
+        before = solver.energy(u)
+        iterations = reused_step(u)
+        if iterations is not None and iterations[0] == 1:
+            log.append((before, solver.energy(u)))
+        return iterations
+
+    solver._reused_step = recorded_step
 
     def recorded(x, y):
         before = solver.energy(x)

@@ -1,0 +1,110 @@
+"""The per-step shortcuts: kept contact kinematics and the reused-factorization step.
+
+Each shortcut must give the bits of the path it replaces: kinematics are compared with a
+fresh product with the contact operator, and the reused-factorization step with SNES
+taking every step (the shortcut switched off on an otherwise identical simulation).
+"""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from parefg.run import prepare
+from parefg.timestepping.step_solver import _reused_step_allowed
+
+# square, m = 2, h = 1/8: contact on the bottom with sliding friction, 20 steps in which
+# the active set changes (factorizations) and most steps are one reused-factorization step
+OVERRIDES = ["discretization.h=0.125", "time.dt=0.0125", "time.T=0.25"]
+
+
+def _fresh_kinematics(law, u):
+    out = law.operator.createVecLeft()
+    law.operator.mult(u, out)
+    values = out.getArray().reshape(-1, 2)
+    return values[:, 0].copy(), values[:, 1].copy()
+
+
+def test_kept_kinematics_follow_every_change_of_the_vector():
+    sim = prepare(MPI.COMM_WORLD, "square", OVERRIDES)
+    law = sim.law
+    u = sim.disc.create_vec()
+    rng = np.random.default_rng(3 + MPI.COMM_WORLD.rank)
+    u.setArray(rng.standard_normal(u.getLocalSize()))
+    first = law.kinematics(u)
+    assert law.kinematics(u) is first  # the same vector, unchanged: kept
+    changes = [
+        lambda: u.shift(0.5),
+        lambda: u.setArray(rng.standard_normal(u.getLocalSize())),
+        lambda: u.scale(-2.0),
+    ]
+    for change in changes:
+        before = [a.copy() for a in law.kinematics(u)]
+        change()
+        after = law.kinematics(u)
+        for value, fresh, old in zip(after, _fresh_kinematics(law, u), before, strict=True):
+            assert np.array_equal(value, fresh)
+            assert not np.array_equal(value, old)
+    # writes through a writable array view count once the view is released
+    array = u.getArray()
+    array *= 3.0
+    del array
+    for value, fresh in zip(law.kinematics(u), _fresh_kinematics(law, u), strict=True):
+        assert np.array_equal(value, fresh)
+    # a kept result is shared: it cannot be changed in place
+    with pytest.raises(ValueError):
+        law.kinematics(u)[0][0] = 1.0
+
+
+def test_another_vector_with_other_values_is_not_served_the_kept_result():
+    sim = prepare(MPI.COMM_WORLD, "square", OVERRIDES)
+    law = sim.law
+    a, b, c = (sim.disc.create_vec() for _ in range(3))
+    for scale, vec in enumerate((a, b, c), start=1):
+        vec.setArray(np.linspace(0.0, scale, vec.getLocalSize()) + MPI.COMM_WORLD.rank)
+    for vec in (a, b, c, a, c, b):
+        for value, fresh in zip(law.kinematics(vec), _fresh_kinematics(law, vec), strict=True):
+            assert np.array_equal(value, fresh)
+
+
+def _run(reuse):
+    sim = prepare(MPI.COMM_WORLD, "square", OVERRIDES)
+    if not reuse:
+        sim.solver._reuse = False
+    state = sim.start()
+    for n in range(1, sim.scene.time.n_steps + 1):
+        state = sim.step(state, n)
+    return sim, state
+
+
+def test_reused_factorization_steps_give_the_bits_of_snes():
+    fast, fast_state = _run(reuse=True)
+    snes, snes_state = _run(reuse=False)
+    n_steps = fast.scene.time.n_steps
+    # both paths are exercised: SNES took the steps that (re)built the Jacobian
+    assert 0 < fast.solver.reused_steps < n_steps
+    assert snes.solver.reused_steps == 0
+    assert fast.solver.factorizations == snes.solver.factorizations > 1
+    for name in ("u", "v", "a"):
+        assert np.array_equal(
+            getattr(fast_state, name).getArray(), getattr(snes_state, name).getArray()
+        )
+    assert fast.history == snes.history  # iterations, active points, energies
+    assert np.array_equal(fast.law.slip, snes.law.slip)
+
+
+def test_options_that_snes_would_act_on_refuse_the_reused_step():
+    assert _reused_step_allowed({"snes_rtol": "1e-12", "ksp_type": "preonly", "pc_type": "lu"})
+    for option in ("snes_monitor", "snes_converged_reason", "snes_lag_jacobian", "snes_view",
+                   "ksp_monitor", "ksp_view", "ksp_converged_reason", "pc_view"):  # fmt: skip
+        assert not _reused_step_allowed({option: None})
+
+
+def test_snes_monitor_is_honoured_at_every_step():
+    options = PETSc.Options()
+    options.setValue("snes_monitor", "")
+    try:
+        sim = prepare(MPI.COMM_WORLD, "square", OVERRIDES)
+    finally:
+        options.delValue("snes_monitor")
+    assert not sim.solver._reuse
