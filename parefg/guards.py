@@ -139,10 +139,12 @@ class PointDatum:
     parefg.scene.separable) has its space parts f_k evaluated here once, ``space``
     (K, *components, n); a time then costs the K numbers a_k(t) and one contraction,
     whose values the guard checks as it checks evaluated ones (:meth:`DataGuard.record`).
-    A datum without that form or whose f_k are not all finite at the points, and any t
-    at which some a_k(t) is not finite or sum_k |a_k(t)| max |f_k| exceeds DATA_BOUND,
-    is evaluated point by point (:meth:`DataGuard.evaluate`): bad values are reported
-    with the messages they always had.
+    A datum without that form, or whose f_k are not all finite at the points, or which
+    itself is not finite at every point at t = 0; and any t at which some a_k(t) is not
+    finite, sum_k |a_k(t)| max |f_k| exceeds DATA_BOUND, or a nonnegative datum's split
+    has a negative value, is evaluated point by point (:meth:`DataGuard.evaluate`): bad
+    values are reported with the messages they always had (the split's rewriting can
+    cancel a singular term or round a square below zero; the datum as written decides).
 
     Parameters
     ----------
@@ -175,7 +177,11 @@ class PointDatum:
         with np.errstate(all="ignore"):
             space = split.space(*(arguments[name] for name in split.space.args))
             flat = space.reshape(len(space), -1)  # (K, components * n)
-            usable = all_finite(flat)
+            # The split rewrites the datum, and the rewriting can cancel a singular term:
+            # t (x + 1/x) - t/x becomes t x, finite at x = 0 where the datum is NaN.  So the
+            # datum as written must be finite at every point at t = 0 (separable.py refuses
+            # products that cancel a denominator, in t as in x).
+            usable = all_finite(flat) and all_finite(self._direct(arguments, 0.0))
             scale = np.abs(flat).max(axis=1, initial=0.0)
         if comm is not None:
             from mpi4py import MPI
@@ -184,6 +190,13 @@ class PointDatum:
             comm.Allreduce(MPI.IN_PLACE, scale, op=MPI.MAX)
         if usable:
             self.space, self.scale = space, scale
+
+    def _direct(self, arguments: dict[str, np.ndarray], t: float) -> np.ndarray:
+        """The datum evaluated as written at the points of ``arguments``, unchecked.
+
+        Not collective."""
+        x, y, *normal = arguments.values()
+        return np.asarray(self.field(x, y, t, *normal), dtype=float)
 
     def coefficients(self, t: float) -> np.ndarray | None:
         """(K,) the a_k(t) when the split gives the values at t, else None.  Not collective."""
@@ -199,14 +212,22 @@ class PointDatum:
         """The datum at the points at t, (*components, n), checked by the guard.  Not collective."""
         a = self.coefficients(t)
         if a is None or self.space is None:
-            x, y, *normal = self.arguments.values()
-            args = (x, y, t, *normal)
-            return self.guard.evaluate(
-                self.key, self.field, self.points, t, *args, nonnegative=self.nonnegative
-            )
+            return self._checked(t)
         with np.errstate(all="ignore"):
             values = np.tensordot(a, self.space, axes=1)
+        if self.nonnegative and np.any(values < 0.0):
+            # the distributed (x - t)^2 has round-off negatives where the square has none:
+            # the datum as written decides (and names a really negative value)
+            return self._checked(t)
         return self.guard.record(self.key, values, self.points, t, nonnegative=self.nonnegative)
+
+    def _checked(self, t: float) -> np.ndarray:
+        """The datum evaluated as written, through the guard.  Not collective."""
+        x, y, *normal = self.arguments.values()
+        args = (x, y, t, *normal)
+        return self.guard.evaluate(
+            self.key, self.field, self.points, t, *args, nonnegative=self.nonnegative
+        )
 
 
 def all_finite(values: np.ndarray) -> bool:

@@ -68,13 +68,18 @@ def separate(exprs: Sequence[sympy.Expr], t: sympy.Symbol = SYMBOLS["t"]) -> Sep
         terms = _terms(expr, t)
         if terms is None:
             return None
-        for factor, part in _grouped(terms):
+        grouped = _grouped(terms)
+        if grouped is None:
+            return None
+        for factor, part in grouped:
             if factor not in time:
                 time[factor] = len(space)
                 space.append([sympy.S.Zero] * len(exprs))
             row = space[time[factor]]
             row[component] = row[component] + part
     keep = [k for k, row in enumerate(space) if any(f != 0 for f in row)]
+    if not keep:  # every time factor cancelled (t (x + 1) - t x - t): nothing to split
+        return None
     factors = list(time)
     return Separation([factors[k] for k in keep], [space[k] for k in keep])
 
@@ -123,18 +128,35 @@ def _product(splits: list[list[Term] | None]) -> list[Term] | None:
     for split in splits:
         if split is None or len(terms) * len(split) > MAX_TERMS:
             return None
+        if any(_cancels(a, b) or _cancels(f, g) for a, f in terms for b, g in split):
+            return None
         terms = [(a * b, f * g) for a, f in terms for b, g in split]
     return terms
 
 
-def _grouped(terms: list[Term]) -> list[Term]:
-    """Terms merged by time factor up to a constant: sum of (a_k, f_k), a_k distinct."""
+def _cancels(p: sympy.Expr, q: sympy.Expr) -> bool:
+    """Whether sympy's product p q cancelled part of a denominator.
+
+    x (1/x) = 1 and (t - 1/2) / (t - 1/2) = 1 lose the NaN the datum as written has at
+    x = 0 or t = 1/2 (exp(t) exp(-t) = 1 the overflow); such a datum is not split.
+    """
+    return sympy.fraction(p * q)[1] != sympy.fraction(p)[1] * sympy.fraction(q)[1]
+
+
+def _grouped(terms: list[Term]) -> list[Term] | None:
+    """Terms merged by time factor up to a constant: sum of (a_k, f_k), a_k distinct.
+
+    None when a time factor with a denominator cancels out (x/(t - 1/2) - x/(t - 1/2)):
+    the datum as written is NaN where that denominator vanishes.
+    """
     groups: dict[sympy.Expr, sympy.Expr] = {}
     for a, f in terms:
         coefficient, factor = a.as_coeff_Mul()
         if factor.could_extract_minus_sign():
             coefficient, factor = -coefficient, -factor
         groups[factor] = groups.get(factor, sympy.S.Zero) + coefficient * f
+    if any(f == 0 and sympy.fraction(a)[1] != 1 for a, f in groups.items()):
+        return None
     return [(a, f) for a, f in groups.items() if f != 0]
 
 

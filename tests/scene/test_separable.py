@@ -136,3 +136,13 @@ def test_non_separable_scene_datum_has_no_split(tmp_path):
     scene = load_scene(str(path))
     assert scene.loads.f.separated is None
     assert scene.boundaries["top"].value.separated is None
+
+
+@pytest.mark.parametrize(
+    "texts",
+    [["x*(t + 1/x)"], ["(t - 0.5)*(x + 1/(t - 0.5))"], ["(exp(t)*x + 1)*exp(-t)*y"],
+     ["(x + 1)/(t - 0.5) - x/(t - 0.5) - 1/(t - 0.5) + t*y"], ["t*(x + 1) - t*x - t"]],
+)  # fmt: skip
+def test_data_whose_split_would_cancel_a_singularity_or_everything_are_not_split(texts):
+    """x (1/x) = 1, (t - 1/2)/(t - 1/2) = 1, exp(t) exp(-t) = 1, or K = 0: no split."""
+    assert separate(parsed(texts)) is None

@@ -6,12 +6,15 @@ shape functions at each t.  Both must agree to round-off, and bad data must be r
 with the same message on both paths.  Serial and under ``mpirun -n 2``.
 """
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from mpi4py import MPI
 
 from parefg.discretization.operators import build_discretization
 from parefg.errors import DataError
+from parefg.guards import DataGuard, PointDatum
 from parefg.scene.expressions import compile_field, parse_expression
 from parefg.scene.fields import WITH_NORMAL
 from parefg.scene.loader import load_scene
@@ -160,3 +163,70 @@ def test_negative_separable_friction_bound_is_reported_as_on_the_per_point_path(
     got, want = message(fast, 3), message(slow, 3)
     assert got == want
     assert "boundary.bottom.friction = 0.5 is negative" in got and "t = 0.1:" in got
+
+
+# ----------------------------------------------------------- what the rewriting must not hide
+
+
+@pytest.mark.parametrize(
+    ("value", "when", "split"),
+    [("x*(t + 1/x)", "t = 0:", False),  # x t + 1 if split: finite at x = 0
+     ("(t - 0.1)*(x + 1/(t - 0.1))", "t = 0.1:", False),  # (t - 0.1) x + 1: finite at 0.1
+     ("t*(x + 1/x) - t/x", "t = 0:", True)],  # split to t x; the datum decides at t = 0
+)  # fmt: skip
+def test_a_singularity_the_split_cancels_is_reported_as_on_the_per_point_path(
+    tmp_path, value, when, split
+):
+    """NaN at x = 0 (the left edge's points) for all t, or at t = 0.1 at every point.
+
+    Products that cancel a denominator are not split; a sum that cancels one is split,
+    and the datum as written, not finite at t = 0, keeps the per-point path.
+    """
+    path = tmp_path / f"cancel{COMM.rank}.toml"
+    path.write_text(BODY + f'[boundary.left]\ntype = "dirichlet"\nvalue = ["{value}", 0]\n')
+    fast, slow = pair(str(path))
+    assert (fast.scene.boundaries["left"].value.separated is not None) is split
+    got, want = message(fast, 3), message(slow, 3)
+    assert got == want
+    assert f"boundary.left.value[0] = '{value}' is not finite (nan)" in got and when in got
+
+
+def test_data_whose_time_terms_all_cancel_run_like_their_per_point_twin(tmp_path):
+    """t (x + 1) - t x - t is 0: no split (K = 0), the same run as the per-point path."""
+    path = tmp_path / f"zero{COMM.rank}.toml"
+    path.write_text(
+        BODY + '[boundary.top]\ntype = "dirichlet"\n[loads]\nf = ["t*(x + 1) - t*x - t", 0]\n'
+    )
+    fast, slow = pair(str(path))
+    states = []
+    for sim in (fast, slow):
+        state = sim.start()
+        for n in range(1, 4):
+            state = sim.step(state, n)
+        states.append(state)
+    assert _difference(states[0].u, states[1].u) <= 1e-12 * states[1].u.norm()
+
+
+def test_round_off_negatives_of_a_distributed_square_are_no_negative_bound():
+    """g = 1e5 (x - t)^2 >= 0 as written; distributed, x^2 - 2 x t + t^2 rounds below zero.
+
+    Contact points x_q = q / 40 and times t_n = n / 40 meet; with E = 1 the round-off
+    (~1e-12) is beyond the guard's floor of zero, so a check of the split's values would
+    call the bound negative where the square is not.
+    """
+    scene = SimpleNamespace(
+        name="s", material=SimpleNamespace(E=1.0), params={"boundary": {"c": {"friction": "g"}}}
+    )
+    expr = parse_expression("1e5*(x - t)**2", "test")
+    field = with_separation(compile_field([expr], WITH_NORMAL, ()), [expr])
+    assert field.separated is not None
+    points = np.column_stack([np.linspace(0.0, 1.0, 41), np.zeros(41)])
+    x, y = points.T
+    arguments = {"x": x, "y": y, "nx": np.zeros_like(x), "ny": -np.ones_like(x)}
+    guard = DataGuard(COMM, scene)
+    datum = PointDatum(guard, ("boundary", "c", "friction"), field, points, arguments, True)
+    assert datum.space is not None  # the split is used
+    for n in range(41):
+        values = datum.values(n * 0.025)
+        guard.check()  # raised "... is negative (-1.82e-12) ..." when the split decided
+        assert np.all(values >= 0.0)
