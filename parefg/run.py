@@ -186,7 +186,8 @@ def run_scene(
     ``max_memory`` (GB per machine; default: its available memory) bounds the estimated
     size of the run: a scene beyond it is refused before anything is created.
     Each of ``observers`` is called as ``observer(n, sim, state)`` after every step n, on
-    every rank.
+    every rank; the state's vectors are the run's: read them (``getArray(readonly=True)``),
+    never write them.
 
     Outputs: with ``[output] every`` = N > 0, t = 0 (unless restarted), every N-th step
     and the final step; with 0 the final step only.  SIGINT / SIGTERM stop the run after

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.parallel import petsc_matrix
@@ -58,15 +59,21 @@ class ContactFrame:
         A step asks for the same u several times (each Newton iterate: its residual,
         convergence test, Jacobian and line search; the accepted u: the energy row, the
         contact acceleration, the next step's start level), so the last results are kept
-        with the vector's PETSc object state.  Every change of the values increases the
-        state, on every rank alike (PETSc's own cached norms rely on the same), so every
-        rank takes the kept result or the collective product together.  The kept vector
-        is referenced: its handle cannot be reused by another vector meanwhile.
+        with the vector's PETSc object state.  Every change of the values through PETSc
+        increases the state; so does releasing a writable numpy view (``getArray()``),
+        which an observer may take on one rank only: on several ranks they agree on the
+        kept result with one reduction (else one rank would skip the collective product
+        the others enter).  The kept vector is referenced: its handle cannot be reused by
+        another vector meanwhile.
         """
         key = (u.handle, u.stateGet())
-        for kept in self._kept:
-            if kept[1] == key:
-                return kept[2]
+        kept = next((result for vec, k, result in self._kept if k == key), None)
+        if self.comm.size > 1:
+            everywhere = np.array(kept is not None, dtype=np.int32)
+            self.comm.Allreduce(MPI.IN_PLACE, everywhere, op=MPI.LAND)
+            kept = kept if everywhere else None
+        if kept is not None:
+            return kept
         out = self._point_vec
         self.operator.mult(u, out)
         values = out.getArray(readonly=True).reshape(-1, 2)

@@ -5,8 +5,12 @@ fresh product with the contact operator, and the reused-factorization step with 
 taking every step (the shortcut switched off on an otherwise identical simulation).
 """
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
+from conftest import mpi_env
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -108,3 +112,37 @@ def test_snes_monitor_is_honoured_at_every_step():
     finally:
         options.delValue("snes_monitor")
     assert not sim.solver._reuse
+
+
+# An observer that reads u on rank 0 only, through petsc4py's default (writable) view:
+# releasing it raises u's PETSc state on rank 0 alone.
+ONE_RANK_READER = """
+from mpi4py import MPI
+from parefg.run import prepare
+comm = MPI.COMM_WORLD
+sim = prepare(comm, "stick", ["time.T=0.15"])
+state = sim.start()
+for n in range(1, 4):
+    state = sim.step(state, n)
+    if comm.rank == 0:
+        state.u.getArray()[0]
+print("rank", comm.rank, "done", flush=True)
+"""
+
+
+@pytest.mark.serial_only
+def test_a_view_taken_on_one_rank_does_not_split_the_ranks_on_the_kept_kinematics(tmp_path):
+    """Both ranks compute the kinematics when one of them saw u's state change.
+
+    With the kept result taken per rank, rank 0 entered the collective product while rank 1
+    went on with its kept one: the job hung (here: killed by the timeout).
+    """
+    script = tmp_path / "reader.py"
+    script.write_text(ONE_RANK_READER)
+    cmd = ["mpirun", "--timeout", "120", "-n", "2", sys.executable, str(script)]
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=150, env=mpi_env())
+    except subprocess.TimeoutExpired:
+        pytest.fail("the 2-rank job hung")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.count("done") == 2
