@@ -21,11 +21,15 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 _SOURCE_DIGEST: list[str] = []  # the package source's digest, computed once per process
 
 
+def disabled() -> bool:
+    """Whether ``PAREFG_CACHE=0`` turns every cache off (the in-process ones too)."""
+    return os.environ.get("PAREFG_CACHE") == "0"
+
+
 def cache_dir(kind: str) -> Path | None:
     """The directory of one kind of entry ("scenes", "meshes"), or None when caching is off."""
-    switch = os.environ.get("PAREFG_CACHE", "")
     root = os.environ.get("PAREFG_CACHE_DIR")
-    if switch == "0" or not (root or switch == "1"):
+    if disabled() or not (root or os.environ.get("PAREFG_CACHE") == "1"):
         return None
     if not root:
         xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")

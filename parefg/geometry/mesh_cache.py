@@ -85,7 +85,7 @@ _MEMORY: OrderedDict[str, NodeCloud] = OrderedDict()
 def memory_key(domain: dict, h: float, cells: str) -> str | None:
     """The in-process key of one mesh, or None when it is not kept (a .geo domain, or
     PAREFG_CACHE=0)."""
-    if os.environ.get("PAREFG_CACHE") == "0" or not _outlined(domain):
+    if user_cache.disabled() or not _outlined(domain):
         return None
     return json.dumps(
         {"domain": domain, "h": float(h), "cells": cells}, sort_keys=True, default=str
