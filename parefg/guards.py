@@ -195,8 +195,7 @@ class PointDatum:
         """The datum evaluated as written at the points of ``arguments``, unchecked.
 
         Not collective."""
-        x, y, *normal = arguments.values()
-        return np.asarray(self.field(x, y, t, *normal), dtype=float)
+        return np.asarray(self.field(*_at_time(arguments, t)), dtype=float)
 
     def coefficients(self, t: float) -> np.ndarray | None:
         """(K,) the a_k(t) when the split gives the values at t, else None.  Not collective."""
@@ -223,11 +222,16 @@ class PointDatum:
 
     def _checked(self, t: float) -> np.ndarray:
         """The datum evaluated as written, through the guard.  Not collective."""
-        x, y, *normal = self.arguments.values()
-        args = (x, y, t, *normal)
+        args = _at_time(self.arguments, t)
         return self.guard.evaluate(
             self.key, self.field, self.points, t, *args, nonnegative=self.nonnegative
         )
+
+
+def _at_time(arguments: dict[str, np.ndarray], t: float) -> tuple:
+    """A datum's positional arguments at t: (x, y, t) or (x, y, t, nx, ny)."""
+    x, y, *normal = arguments.values()
+    return (x, y, t, *normal)
 
 
 def all_finite(values: np.ndarray) -> bool:

@@ -79,6 +79,7 @@ class ContactLaw(ContactFrame):
         self._bcs = _contact_parts(disc.cloud.part_names, scene.boundaries)
         self.has_friction = not all(bc.friction_is_zero for bc in self._bcs.values())
         self.gap = self._per_part("gap", lambda bc, x, y, n: bc.gap(x, y), 0.0)
+        self._friction_data = self._friction_bounds() if self.has_friction else []
         self._init_coulomb()
         self.bound_data = np.zeros(len(self.weights))  # g_n(x_q) at the points, set by set_time
         self.acting = np.ones(len(self.weights), dtype=bool)  # where the law lets g act (gate)
@@ -89,6 +90,18 @@ class ContactLaw(ContactFrame):
         self.level_pressure = np.zeros(len(self.weights))
         self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
         self.step_friction = np.zeros(len(self.weights))
+
+    def _friction_bounds(self) -> list[tuple[np.ndarray, PointDatum]]:
+        """(points of the part, its g as a PointDatum) of each contact part.  Not collective."""
+        bounds = []
+        for part_id, bc in self._bcs.items():
+            on = self.part == part_id
+            points, normals = self.points[on], self.normals[on]
+            x, y, nx, ny = points[:, 0], points[:, 1], normals[:, 0], normals[:, 1]
+            key = ("boundary", bc.name, "friction")
+            arguments = {"x": x, "y": y, "nx": nx, "ny": ny}
+            bounds.append((on, PointDatum(self.guard, key, bc.friction, points, arguments, True)))
+        return bounds
 
     def _init_coulomb(self) -> None:
         """mu_f at the points of Coulomb parts (0 elsewhere); has_coulomb on every rank."""
@@ -142,16 +155,6 @@ class ContactLaw(ContactFrame):
         """
         if not self.has_friction:
             return
-        if getattr(self, "_friction_data", None) is None:  # each part's g, at the first call
-            self._friction_data = []
-            for part_id, bc in self._bcs.items():
-                on = self.part == part_id
-                points, normals = self.points[on], self.normals[on]
-                x, y, nx, ny = points[:, 0], points[:, 1], normals[:, 0], normals[:, 1]
-                key = ("boundary", bc.name, "friction")
-                arguments = {"x": x, "y": y, "nx": nx, "ny": ny}
-                datum = PointDatum(self.guard, key, bc.friction, points, arguments, True)
-                self._friction_data.append((on, datum))
         self.bound_data = np.zeros(len(self.weights))
         for on, datum in self._friction_data:
             self.bound_data[on] = datum.values(t)
