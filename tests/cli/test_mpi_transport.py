@@ -1,0 +1,55 @@
+"""Open MPI's transport defaults (parefg/_env.py): ob1 asked for directly where all ranks
+share one machine, the singleton daemon skipped, nothing the user set overridden, and
+nothing changed for ranks spread over several machines.  Whether the runs still agree on
+1 and 2 ranks is the business of tests/parallel; here, the choice and that it reaches a
+real process before MPI_Init."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+from conftest import mpi_env
+
+from parefg._env import one_machine_transport
+
+
+def test_a_singleton_asks_for_ob1_and_no_daemon():
+    assert one_machine_transport({}) == {
+        "OMPI_MCA_pml": "ob1",
+        "OMPI_MCA_ess_singleton_isolated": "1",
+    }
+
+
+def test_ranks_on_one_machine_ask_for_ob1():
+    launched = {"OMPI_COMM_WORLD_SIZE": "2", "OMPI_COMM_WORLD_LOCAL_SIZE": "2"}
+    assert one_machine_transport(launched) == {"OMPI_MCA_pml": "ob1"}
+
+
+def test_ranks_on_several_machines_keep_open_mpis_choice():
+    spread = {"OMPI_COMM_WORLD_SIZE": "8", "OMPI_COMM_WORLD_LOCAL_SIZE": "4"}
+    assert one_machine_transport(spread) == {}
+
+
+def test_what_the_user_set_wins():
+    chosen = {"OMPI_MCA_pml": "ucx", "OMPI_MCA_ess_singleton_isolated": "0"}
+    assert one_machine_transport(chosen) == {}
+
+
+@pytest.mark.serial_only
+def test_the_choice_is_made_before_mpi_starts_and_mpi_runs_with_it():
+    """A fresh interpreter importing parefg then MPI: the variables are set and Open MPI
+    came up with them (a wrong value would fail MPI_Init)."""
+    env = {key: value for key, value in mpi_env().items() if key != "OMPI_MCA_pml"}
+    env.pop("OMPI_MCA_ess_singleton_isolated", None)
+    probe = (
+        "import os, parefg\n"
+        "from mpi4py import MPI\n"
+        "MPI.COMM_WORLD.barrier()\n"
+        "print(os.environ['OMPI_MCA_pml'], MPI.COMM_WORLD.size)\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["ob1", "1"]
