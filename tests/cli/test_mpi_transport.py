@@ -4,7 +4,6 @@ nothing changed for ranks spread over several machines.  Whether the runs still 
 1 and 2 ranks is the business of tests/parallel; here, the choice and that it reaches a
 real process before MPI_Init."""
 
-import os
 import subprocess
 import sys
 
