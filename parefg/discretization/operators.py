@@ -26,8 +26,9 @@ from parefg.discretization.point_gradients import PointGradients, sorted_gradien
 from parefg.discretization.point_set import PointSet, point_operator
 from parefg.discretization.quadrature import Quadrature, cell_quadrature
 from parefg.geometry.cloud import NodeCloud
+from parefg.geometry.distribute import partition_on_root
 from parefg.geometry.gmsh_mesh import build_node_cloud
-from parefg.geometry.partition import Partition, partition_cloud
+from parefg.geometry.partition import Partition
 from parefg.parallel import owned_rows, raise_everywhere
 from parefg.profiling import phase
 
@@ -114,7 +115,7 @@ class _Builder(BoundaryOperators):
                 budget,
             )
             budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
-            self.cloud, self.partition = partition_cloud(cloud, comm.size)
+            self.cloud, self.partition = partition_on_root(comm, cloud)
         self.n_nodes = len(self.cloud.coords)
         self.node_ranges = self.partition.node_ranges  # (comm.size + 1,)
         self.dof_ranges = 2 * self.node_ranges

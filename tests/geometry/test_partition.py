@@ -130,3 +130,17 @@ def test_more_parts_than_nodes_is_an_input_error(square):
         partition_cloud(square, square.n_nodes + 1)
     with pytest.raises(InputError, match="parts"):
         partition_cloud(square, 0)
+
+
+def test_partition_on_root_equals_partition_on_every_rank(zcloud):
+    """Partition computed on rank 0 and Bcast as buffers == the per-rank computation."""
+    from parefg.geometry.distribute import partition_on_root
+
+    comm = MPI.COMM_WORLD
+    expected_cloud, expected = partition_cloud(zcloud, comm.size)
+    got_cloud, got = partition_on_root(comm, zcloud)
+    for name in ("coords", "spacing", "quads", "triangles", "segments", "original_index"):
+        np.testing.assert_array_equal(getattr(got_cloud, name), getattr(expected_cloud, name))
+    for name in ("node_ranges", "quad_owner", "triangle_owner", "segment_owner"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+    assert got_cloud.part_names == expected_cloud.part_names
