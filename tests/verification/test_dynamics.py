@@ -60,6 +60,46 @@ def test_rates_in_h_for_degree_one(scene_name):
     assert h1[-1] < 0.01 and l2[-1] < 1e-3  # converging to the right solution, not just fast
 
 
+# The scenes' exact solution with (1 - cos t) replaced by t^2 (same signs: contact on y = 0,
+# sliding; same zero initial state).  Newmark 1/2-1/2 integrates a motion quadratic in t
+# exactly (constant acceleration: u_n+1 = u_n + dt v_n + dt^2 a / 2), so these runs have no
+# time error and show the dynamic solver's spatial rates at any dt.
+TIME_EXACT = 'exact.u=["t**2 * (1 + x) * exp(y)", "-t**2 * y * exp(x)"]'
+
+
+def test_a_motion_quadratic_in_time_has_no_time_error():
+    """m = 2, h = 1/16: the same errors at dt = 0.1 and 0.025 (within 1 %), while the scene's
+    own (1 - cos t) motion changes 16x between them (second order).
+
+    Measured: L2 2.549e-6 / 2.552e-6, H1 8.964e-5 / 8.964e-5.
+    """
+    coarse, fine = (errors("square", [TIME_EXACT, f"time.dt={dt}"]) for dt in (0.1, 0.025))
+    for norm in ("l2_rel", "h1_rel"):
+        assert abs(coarse[norm] - fine[norm]) <= 0.01 * fine[norm], (coarse, fine)
+    assert fine["l2_rel"] < 1e-5  # and the spatial error is small: the solution is right
+
+
+@pytest.mark.parametrize("scene_name", ["square", "z"])
+@pytest.mark.parametrize("degree", [1, 2])
+def test_dynamic_spatial_rates_without_time_error(scene_name, degree):
+    """The time-exact motion, dt = 0.05, h = 1/8, 1/16: H1 rate in [m - 0.2, m + 0.6], L2 in
+    [m + 0.65, m + 1.7] at m = 1 and >= m + 0.3 at m = 2, the bounds of the static tests.
+
+    Measured L2 / H1 rates: m = 1 square 2.41 / 1.47, Z 2.23 / 1.45; m = 2 square 2.73 / 2.18,
+    Z 2.70 / 2.08.  At m = 2 the L2 rate falls below 2 from h = 1/16 to 1/32 (2.6e-6 ->
+    1.0e-6): penalty contact's consistency error u_n = sigma_n / alpha_C (alpha_C = 1e4 E/h,
+    O(h)) is the floor there; see the README's dynamic convergence tables.
+    """
+    sizes = [0.125, 0.0625]
+    fixed = [TIME_EXACT, f"discretization.degree={degree}", "time.dt=0.05"]
+    runs = [errors(scene_name, [*fixed, f"discretization.h={h}"]) for h in sizes]
+    h1_rate = fitted_rate(sizes, [e["h1_rel"] for e in runs])
+    l2_rate = fitted_rate(sizes, [e["l2_rel"] for e in runs])
+    assert degree - 0.2 <= h1_rate <= degree + 0.6, runs
+    assert degree + 0.65 <= l2_rate <= degree + 1.7 if degree == 1 else l2_rate >= degree + 0.3
+    assert runs[-1]["h1_rel"] < (5e-3 if degree == 1 else 2e-4), runs  # the right solution
+
+
 @pytest.mark.parametrize("scene_name", ["square", "z"])
 def test_newmark_is_second_order_in_time(scene_name):
     """m = 2, h = 1/16 (space error ~1e-5): L2 vs dt = 0.1, 0.05, 0.025 has rate >= 1.8.
