@@ -46,7 +46,7 @@ def studies(quick: bool) -> list[tuple[str, str, list[float], list[str]]]:
     sizes = [0.125, 0.0625] if quick else [0.125, 0.0625, 0.03125]
     time_exact = [
         (f"h, m = {m}, u quadratic in t (no time error), dt = 0.05", "discretization.h", sizes,
-         [f"discretization.degree={m}", TIME_EXACT])
+         [f"discretization.degree={m}", "time.dt=0.05", TIME_EXACT])
         for m in (1, 2, 3)
     ]  # fmt: skip
     return time_exact + [
