@@ -30,7 +30,8 @@ import numpy as np
 
 from parefg.discretization import assembly_kernels as kernels
 from parefg.discretization.assembly import sorted_slots, value_operator
-from parefg.discretization.mls import MLS
+from parefg.discretization.consistent_gradients import ConsistencySums, corrected_gradients
+from parefg.discretization.mls import MLS, ShapeValues
 from parefg.discretization.point_gradients import sorted_gradients
 from parefg.discretization.quadrature import Quadrature
 
@@ -79,15 +80,22 @@ def assemble_domain(mls: MLS, quadrature: Quadrature, rho: float, timer) -> Doma
     """The domain's Gram data and value operator (see the module docstring).  Not collective.
 
     ``timer(name)`` is a context manager timing the phases "neighbours", "mls" and
-    "assembly".  Raises MLSError as :meth:`MLS.evaluate` does.
+    "assembly".  Raises MLSError as :meth:`MLS.evaluate` does.  Plain Gauss integration:
+    with VCI the builder runs the passes of :class:`BlockPasses` itself, since the
+    gradient correction is summed over ranks between them.
     """
-    passes = _BlockPasses(mls, quadrature, timer)
-    indptr, indices, row_lengths = passes.pattern()
-    return passes.fill(rho, indptr, indices, row_lengths)
+    passes = BlockPasses(mls, quadrature, timer)
+    pattern = passes.pattern()
+    return passes.fill(rho, *pattern)
 
 
-class _BlockPasses:
-    """The two passes of :func:`assemble_domain` over blocks of consecutive cells."""
+class BlockPasses:
+    """The two passes of :func:`assemble_domain` over blocks of consecutive cells.
+
+    Between them, :meth:`add_consistency_sums` may add the domain terms of the VCI
+    gradient correction (:mod:`.consistent_gradients`); ``fill`` then builds the
+    stiffness's Gram data from the corrected gradients.
+    """
 
     def __init__(self, mls: MLS, quadrature: Quadrature, timer):
         self.mls, self.quadrature, self.timer = mls, quadrature, timer
@@ -96,6 +104,7 @@ class _BlockPasses:
         self.blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         self.searched: list[tuple | None] = [None] * len(self.blocks)  # of a one-block domain
         self.padded_slots = 0  # points x padded neighbours over all blocks
+        self.shapes: list[ShapeValues | None] = [None] * len(self.blocks)  # of a one-block domain
 
     def block_pairs(self, index: int) -> tuple:
         """(neighbours, mask, node_start, nodes, pairs) of block ``index`` (see _pairs):
@@ -139,8 +148,37 @@ class _BlockPasses:
             )
         return indptr, indices, row_lengths
 
-    def fill(self, rho: float, indptr, indices, row_lengths) -> DomainOperators:
-        """Pass 2: MLS per block, its Gram contributions and its rows of S."""
+    def block_shape(self, index: int, searched: tuple) -> ShapeValues:
+        """MLS values and gradients of block ``index``: kept from the consistency sums of a
+        one-block domain, else evaluated."""
+        shape = self.shapes[index]
+        if shape is not None:
+            self.shapes[index] = None
+            return shape
+        first, last = self.blocks[index]
+        with self.timer("mls"):
+            return self.mls.evaluate(
+                self.quadrature.points[first:last], gradients=True, neighbours=searched[:2]
+            )
+
+    def add_consistency_sums(self, sums: ConsistencySums) -> None:
+        """The domain terms of the VCI correction, block by block (after :meth:`pattern`)."""
+        for index, (first, last) in enumerate(self.blocks):
+            found = self.block_pairs(index)
+            shape = self.block_shape(index, found)
+            with self.timer("assembly"):
+                points, weights = self.quadrature.points, self.quadrature.weights
+                sums.add_domain(shape, points[first:last], weights[first:last])
+            if len(self.blocks) == 1:  # pass 2 takes both again
+                self.searched[index], self.shapes[index] = found, shape
+
+    def fill(self, rho: float, indptr, indices, row_lengths, correction=None) -> DomainOperators:
+        """Pass 2: MLS per block, its Gram contributions and its rows of S.
+
+        ``correction`` (the (n_nodes, 2, n_p) coefficients of
+        :func:`~.consistent_gradients.node_corrections`) makes the test functions'
+        gradients in K the VCI ones (row I of K: corrected grad phi_I).
+        """
         mls, quadrature, n_nodes, timer = self.mls, self.quadrature, self.n_nodes, self.timer
         points = quadrature.points
         keep = self.padded_slots * 20 <= KEEP_GRADIENT_BYTES  # int32 node + 2 float64 each
@@ -157,9 +195,7 @@ class _BlockPasses:
             neighbours, mask, node_start, nodes, (pair_start, pair_local, pair_row, pair_col) = (
                 searched
             )
-            with timer("mls"):
-                block = points[first:last]
-                shape = mls.evaluate(block, gradients=True, neighbours=(neighbours, mask))
+            shape = self.block_shape(index, searched)
             low, high = min(low, shape.condition.min()), max(high, shape.condition.max())
             with timer("assembly"):
                 groups = self.groups_of(first, last)
@@ -171,8 +207,19 @@ class _BlockPasses:
                 phi = np.ascontiguousarray(shape.phi[:, :, None])
                 kernels.gram_groups(phi, phi, rho * weights, *common, mass, local_of)
                 dphi = np.ascontiguousarray(shape.dphi)
+                test = dphi  # the test function's gradients: VCI corrects these only
+                if correction is not None:
+                    test = corrected_gradients(
+                        shape,
+                        points[first:last],
+                        mls.nodes,
+                        mls.support_radius,
+                        correction,
+                        mls.degree,
+                        mls.backend == "numba",
+                    )
                 kernels.gram_groups(
-                    dphi, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
+                    test, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
                 )
                 slots = sorted_slots(shape, n_nodes)
                 piece = value_operator(shape, n_nodes, slots)  # the block's rows, columns sorted

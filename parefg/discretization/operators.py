@@ -19,12 +19,13 @@ from petsc4py import PETSc
 from parefg.discretization.assembly import interleaved, value_operator
 from parefg.discretization.boundary_operators import BoundaryOperators
 from parefg.discretization.budget import Budget, check_problem_size
+from parefg.discretization.consistent_gradients import ConsistencySums, node_corrections
 from parefg.discretization.dirichlet import DirichletPart
-from parefg.discretization.domain_assembly import assemble_domain
+from parefg.discretization.domain_assembly import BlockPasses
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients, sorted_gradients
 from parefg.discretization.point_set import PointSet, point_operator
-from parefg.discretization.quadrature import Quadrature, cell_quadrature
+from parefg.discretization.quadrature import Quadrature, cell_quadrature, segment_quadrature
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.distribute import partition_on_root
 from parefg.geometry.gmsh_mesh import build_node_cloud
@@ -167,15 +168,20 @@ class _Builder(BoundaryOperators):
     def _domain(self) -> tuple[PointSet, PETSc.Mat, PETSc.Mat]:
         """The domain point set, M and K, from MLS evaluated block by block."""
         scene, quadrature = self.scene, self._domain_quadrature()
-        operators, error = None, None
-        try:
-            operators = assemble_domain(
-                self.mls, quadrature, scene.material.rho, lambda name: phase(self.timings, name)
+        passes = BlockPasses(self.mls, quadrature, lambda name: phase(self.timings, name))
+        indptr, indices, row_lengths = self._collectively(passes.pattern)
+        correction = None
+        if scene.discretization.integration == "vci":
+            mls = self.mls
+            sums = ConsistencySums(
+                mls.nodes, mls.support_radius, mls.degree, compiled=mls.backend == "numba"
             )
-        except MLSError as failure:
-            error = failure
-        raise_everywhere(self.comm, error)
-        assert operators is not None  # no rank failed
+            self._collectively(lambda: self._consistency_sums(passes, sums))
+            with phase(self.timings, "assembly"):
+                correction = node_corrections(self.comm, sums, self.node_ranges)
+        operators = self._collectively(
+            lambda: passes.fill(scene.material.rho, indptr, indices, row_lengths, correction)
+        )
         if len(quadrature.points):
             self.conditions.append(np.array(operators.condition_range))
         with phase(self.timings, "assembly"):
@@ -199,6 +205,32 @@ class _Builder(BoundaryOperators):
                 ),
             )
         return domain, mass, stiffness
+
+    def _collectively(self, work):
+        """``work()``; an MLSError on any rank is raised on every rank (no rank left waiting)."""
+        result, error = None, None
+        try:
+            result = work()
+        except MLSError as failure:
+            error = failure
+        raise_everywhere(self.comm, error)
+        return result
+
+    def _consistency_sums(self, passes: BlockPasses, sums: ConsistencySums) -> None:
+        """This rank's VCI terms: its domain points' and its segments' (all of the boundary)."""
+        passes.add_consistency_sums(sums)
+        cloud = self.cloud
+        mine = np.flatnonzero(self.partition.segment_owner == self.comm.rank)
+        boundary = segment_quadrature(
+            cloud.coords, cloud.segments, self.scene.discretization.quadrature, segment_ids=mine
+        )
+        with phase(self.timings, "neighbours"):
+            neighbours = self.mls.find_neighbours(boundary.points)
+        with phase(self.timings, "mls"):
+            shape = self.mls.evaluate(boundary.points, gradients=False, neighbours=neighbours)
+        with phase(self.timings, "assembly"):
+            assert boundary.normals is not None
+            sums.add_boundary(shape, boundary.points, boundary.weights, boundary.normals)
 
     def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
         """MLS at this rank's points; an MLS failure on any rank is raised on every rank."""

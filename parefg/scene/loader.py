@@ -179,7 +179,7 @@ def _solver(table: dict) -> SolverSection:
 
 def _discretization(table: dict) -> DiscretizationSection:
     """The [discretization] section; jitter and seed are 0 when absent (no jitter)."""
-    keys = ("h", "degree", "weight", "support", "quadrature", "cells")
+    keys = ("h", "degree", "weight", "support", "quadrature", "cells", "integration")
     return DiscretizationSection(
         **{key: table[key] for key in keys},
         jitter=table.get("jitter", 0.0),

@@ -100,6 +100,10 @@ DEFAULT_SUPPORT = {1: 2.0, 2: 3.2, 3: 4.0}
 DEFAULT_QUADRATURE = {1: 3, 2: 8, 3: 9}
 UNSTRUCTURED_QUADRATURE = {1: 6, 2: 10, 3: 12}
 MAX_QUADRATURE = 16
+# How K is integrated: "gauss" (the MLS gradients at the Gauss points) or "vci" (their
+# variationally consistent correction, parefg.discretization.consistent_gradients).
+INTEGRATIONS = ("gauss", "vci")
+DEFAULT_INTEGRATION = "gauss"
 STEP_TOLERANCE = 1e-9  # relative distance of T / dt from an integer
 MAX_STEPS = 10**9  # beyond this T / dt is a typo, and is no longer checked as an integer
 
@@ -157,6 +161,7 @@ def _read_discretization(table: Table, shape: str) -> None:
     points = (DEFAULT_QUADRATURE if structured else UNSTRUCTURED_QUADRATURE)[degree]
     table.take("quadrature", as_integer, points, between(1, MAX_QUADRATURE))
     table.take("cells", one_of(*CELL_TYPES), CELL_TYPES[0])
+    table.take("integration", one_of(*INTEGRATIONS), DEFAULT_INTEGRATION)
     # Absent stays absent (no jitter): the effective scene of an unjittered run is unchanged.
     table.take("jitter", as_number, None, between(0.0, MAX_JITTER))
     table.take("seed", as_integer, None, (lambda v: 0 <= v < 2**63, "must be in 0..2**63 - 1"))
@@ -342,4 +347,17 @@ def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, 
         section("exact", lambda table: table.take("u", as_vector))
     section("output", _read_output, params["time"])
     params["solver"] = _read_solver(where, raw.get("solver", {}))
+    _check_integration_solver(where, params["discretization"], params["solver"])
     return params, part_names
+
+
+def _check_integration_solver(where: str, discretization: dict, solver: dict) -> None:
+    """VCI makes K nonsymmetric: CG and the symmetric factorizations would be wrong."""
+    if discretization["integration"] != "vci":
+        return
+    symmetric = solver["method"] == "iterative" or solver.get("pc_type") in ("cholesky", "icc")
+    if symmetric or solver.get("ksp_type") in ("cg", "minres"):
+        raise InputError(
+            f'{where}: discretization.integration = "vci" makes the stiffness nonsymmetric; '
+            'use the direct solver with LU (solver.method = "direct", no cholesky/icc/cg)'
+        )

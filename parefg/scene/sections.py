@@ -28,6 +28,7 @@ class DiscretizationSection:
     support: float  # dilation s
     quadrature: int  # Gauss points per cell direction
     cells: str  # a parefg.geometry.cells.CellType
+    integration: str  # "gauss" or "vci" (parefg.scene.schema.INTEGRATIONS)
     jitter: float  # 0 when absent
     seed: int  # 0 when absent
 

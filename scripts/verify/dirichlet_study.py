@@ -37,6 +37,12 @@ BOUNDARIES = {
     "square": {"top": "dirichlet", "left": "dirichlet", "bottom": "neumann", "right": "neumann"},
     "z": {"top": "dirichlet", "bottom": "dirichlet", "sides": "neumann"},
 }
+# The unit square as a user polygon: the same problem on unstructured background cells.
+BOUNDARIES["polygon"] = BOUNDARIES["square"]
+POLYGON = (
+    "vertices = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]\n"
+    'edge_names = ["bottom", "right", "top", "left"]\n'
+)
 
 
 def scene_text(shape: str) -> str:
@@ -44,15 +50,18 @@ def scene_text(shape: str) -> str:
         f'[boundary.{name}]\ntype = "{kind}"\n\n' for name, kind in BOUNDARIES[shape].items()
     )
     return (
-        f'[domain]\nshape = "{shape}"\n\n[material]\nE = 1.0\nnu = 0.3\n\n'
+        f'[domain]\nshape = "{shape}"\n{POLYGON if shape == "polygon" else ""}\n'
+        "[material]\nE = 1.0\nnu = 0.3\n\n"
         '[time]\nscheme = "static"\nT = 1.0\ndt = 1.0\n\n'
         f"{boundary}[exact]\nu = {EXACT_U}\n"
     )
 
 
-def overrides(shape, degree, method, h, parameter, quadrature, support) -> list[str]:
+def overrides(shape, degree, method, h, parameter, quadrature, support, integration) -> list[str]:
     """The --set strings of one case (parameter: Nitsche's safety or alpha_D h / E)."""
     sets = [f"discretization.h={h}", f"discretization.degree={degree}"]
+    if integration is not None:
+        sets.append(f'discretization.integration="{integration}"')
     for name, kind in BOUNDARIES[shape].items():
         if kind == "dirichlet":
             sets.append(f"boundary.{name}.method={method}")
@@ -99,6 +108,7 @@ def main() -> None:
     parser.add_argument("--safety", default=None, help="Nitsche safety (or alpha_D h/E)")
     parser.add_argument("--quadrature", default=None)
     parser.add_argument("--support", default=None)
+    parser.add_argument("--integration", default=None, help="gauss, vci or both")
     parser.add_argument("--out", default="dirichlet_study.csv")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
@@ -110,18 +120,22 @@ def main() -> None:
         _values(args.safety, float),
         _values(args.quadrature, int),
         _values(args.support, float),
+        _values(args.integration, str),
     )
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for shape, degree, method, parameter, quadrature, support in grid:
+        for shape, degree, method, parameter, quadrature, support, integration in grid:
             path = str(Path(tmp) / f"{shape}.toml")
             if comm.rank == 0:
                 Path(path).write_text(scene_text(shape))
             comm.Barrier()
             group = []
             for h in sizes:
-                case = overrides(shape, degree, method, h, parameter, quadrature, support)
+                case = overrides(
+                    shape, degree, method, h, parameter, quadrature, support, integration
+                )
                 row = {"shape": shape, "degree": degree, "method": method, "h": h}
+                row["integration"] = integration or "default"
                 row.update(parameter=parameter, **run_case(comm, path, case))
                 group.append(row)
                 if comm.rank == 0:
@@ -134,7 +148,8 @@ def main() -> None:
             if comm.rank == 0 and len(sizes) > 1:
                 l2 = fitted_rate(sizes, [r["l2_rel"] for r in group])
                 h1 = fitted_rate(sizes, [r["h1_rel"] for r in group])
-                print(f"  rates {shape} m={degree} {method} {parameter}: L2 {l2:.2f} H1 {h1:.2f}")
+                label = f"{shape} m={degree} {method} {parameter} {integration}"
+                print(f"  rates {label}: L2 {l2:.2f} H1 {h1:.2f}")
     if comm.rank == 0:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         with open(args.out, "w", newline="") as handle:

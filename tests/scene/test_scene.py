@@ -87,6 +87,7 @@ def test_effective_params_contain_defaults(square):
         "support": 3.2,
         "quadrature": 8,  # DEFAULT_QUADRATURE[2] on the square's grid
         "cells": "quad",
+        "integration": "gauss",
     }
     assert params["penalty"] == dict.fromkeys(
         ("alpha", "alpha_dirichlet", "alpha_contact", "alpha_friction"), 1.6e5
