@@ -1,0 +1,123 @@
+"""Hertz line contact of a half-disk on a rigid plane: parefg against the closed form.
+
+The scene of :mod:`parefg.scene.hertz` (R = 1, E = 1, nu = 0.3, one static step pushing
+the clamped top down by delta, frictionless penalty contact).  For each (h, alpha factor,
+delta) of the grid given on the command line it solves in-process and prints the
+contact resultant P (and its equilibrium checks), the Hertz half-width a and peak
+pressure p0 of that P, and the measured ones with their relative errors:
+
+* ``a_mom``: 2 sqrt(int p x^2 / int p), the half-width of an elliptic pressure with the
+  measured second moment;
+* ``a_fit``, ``p0_fit``: least-squares fit of p0 sqrt(1 - x^2/a^2) to the point pressures;
+* ``p_max``: the largest point pressure; ``a_edge``: the outermost closed point.
+
+Rows go to a CSV.  Collective (runs under mpirun -n P).
+
+Usage::
+
+    .venv/bin/python scripts/verify/hertz_study.py --h 0.2,0.1,0.05 --alpha 10 \\
+        --delta 0.015 --out results/hertz.csv
+    .venv/bin/python scripts/verify/hertz_study.py --h 0.1 --alpha 1,10,100,default
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import itertools
+import tempfile
+import time
+from pathlib import Path
+
+from mpi4py import MPI
+
+from parefg.run import prepare
+from parefg.scene.hertz import hertz_scene, measure
+
+
+def solve(comm, h: float, alpha_factor: float | None, delta: float, degree: int) -> dict:
+    """One static Hertz solve and its measures.  Collective."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "hertz.toml"
+        if comm.rank == 0:
+            path.write_text(hertz_scene(h, delta, alpha_factor, degree))
+        comm.Barrier()
+        start = time.perf_counter()
+        sim = prepare(comm, str(path))
+        state = sim.step(sim.start(), 1)
+        result = dataclasses.asdict(measure(sim, state.u))
+        comm.Barrier()  # every rank has read the scene before rank 0 removes it
+    result.update(
+        h=h,
+        alpha_factor="default" if alpha_factor is None else alpha_factor,
+        alpha_contact=sim.scene.penalty.alpha_contact,
+        delta=delta,
+        degree=degree,
+        n_nodes=sim.disc.n_nodes,
+        seconds=time.perf_counter() - start,
+    )
+    return result
+
+
+def relative(value: float, reference: float) -> float:
+    return value / reference - 1.0
+
+
+def print_table(rows: list[dict]) -> None:
+    header = (
+        f"{'h':>6} {'alpha':>7} {'delta':>6} {'nodes':>6} {'P':>10} {'dP_stress':>9} "
+        f"{'Px/P':>8} {'a_H':>7} {'a_mom':>8} {'a_fit':>8} {'a_edge':>8} {'p0_H':>7} "
+        f"{'p0_fit':>8} {'p_max':>8} {'s':>5}"
+    )
+    print(header)
+    for r in rows:
+        print(
+            f"{r['h']:6.3f} {str(r['alpha_factor']):>7} {r['delta']:6.3f} {r['n_nodes']:6d} "
+            f"{r['load']:10.4e} {relative(r['load_stress'], r['load']):+9.2e} "
+            f"{r['load_x'] / r['load']:+8.1e} {r['a_hertz']:7.4f} "
+            f"{relative(r['a_moment'], r['a_hertz']):+8.2%} "
+            f"{relative(r['a_fit'], r['a_hertz']):+8.2%} "
+            f"{relative(r['a_edge'], r['a_hertz']):+8.2%} {r['p0_hertz']:7.4f} "
+            f"{relative(r['p0_fit'], r['p0_hertz']):+8.2%} "
+            f"{relative(r['p_max'], r['p0_hertz']):+8.2%} {r['seconds']:5.1f}"
+        )
+    print(
+        "errors relative to the closed form at the measured P; dP_stress: stress "
+        "resultant / P - 1; Px: horizontal resultant"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--h", default="0.2,0.1,0.05", help="scene spacings (contact: h/10)")
+    parser.add_argument(
+        "--alpha", default="10", help="alpha_contact x E / (h/10), or 'default' (1e4 E/h)"
+    )
+    parser.add_argument("--delta", default="0.015", help="top displacements")
+    parser.add_argument("--degree", default="2")
+    parser.add_argument("--out", default=None, help="CSV file")
+    args = parser.parse_args()
+    comm = MPI.COMM_WORLD
+    grid = itertools.product(
+        [float(v) for v in args.degree.split(",")],
+        [float(v) for v in args.delta.split(",")],
+        [None if v == "default" else float(v) for v in args.alpha.split(",")],
+        [float(v) for v in args.h.split(",")],
+    )
+    rows = [solve(comm, h, alpha, delta, int(degree)) for degree, delta, alpha, h in grid]
+    if comm.rank != 0:
+        return
+    print_table(rows)
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with out.open("w", newline="") as stream:
+            writer = csv.DictWriter(stream, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
