@@ -49,8 +49,19 @@ CONTACT_REFINEMENT = 0.1  # half_disk.geo's SizeMin = h / 10
 E, NU = 1.0, 0.3
 
 
+#: the gap from the true arc (the point projected radially onto the circle) ...
+ARC_GAP = "sqrt(x**2 + (1 - y)**2) / (1 - y) - 1"
+#: ... and from the chord the point lies on (only for showing why not: module docstring)
+CHORD_GAP = "y / (1 - y)"
+
+
 def hertz_scene(
-    h: float, delta: float, alpha_factor: float | None = 10.0, degree: int = 2, nu: float = NU
+    h: float,
+    delta: float,
+    alpha_factor: float | None = 10.0,
+    degree: int = 2,
+    nu: float = NU,
+    gap: str = ARC_GAP,
 ) -> str:
     """The TOML text of the Hertz scene at spacing h and top displacement delta.
 
@@ -78,7 +89,7 @@ T = 1.0
 dt = 1.0
 {penalty}[boundary.contact]
 type = "contact"
-gap = "sqrt(x**2 + (1 - y)**2) / (1 - y) - 1"
+gap = "{gap}"
 [boundary.top]
 type = "dirichlet"
 value = [0, "-{delta!r} * t"]

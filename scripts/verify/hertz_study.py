@@ -23,6 +23,7 @@ Usage::
     .venv/bin/python scripts/verify/hertz_study.py --h 0.2,0.1,0.05 --alpha 10 \\
         --delta 0.015 --out results/hertz.csv
     .venv/bin/python scripts/verify/hertz_study.py --h 0.1 --alpha 1,10,100,default
+    .venv/bin/python scripts/verify/hertz_study.py --h 0.1 --alpha default --chord-gap
 """
 
 from __future__ import annotations
@@ -38,15 +39,17 @@ from pathlib import Path
 from mpi4py import MPI
 
 from parefg.run import prepare
-from parefg.scene.hertz import hertz_scene, measure
+from parefg.scene.hertz import ARC_GAP, CHORD_GAP, hertz_scene, measure
 
 
-def solve(comm, h: float, alpha_factor: float | None, delta: float, degree: int, nu: float) -> dict:
+def solve(
+    comm, h: float, alpha_factor: float | None, delta: float, degree: int, nu: float, gap: str
+) -> dict:
     """One static Hertz solve and its measures.  Collective."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "hertz.toml"
         if comm.rank == 0:
-            path.write_text(hertz_scene(h, delta, alpha_factor, degree, nu))
+            path.write_text(hertz_scene(h, delta, alpha_factor, degree, nu, gap))
         comm.Barrier()
         start = time.perf_counter()
         sim = prepare(comm, str(path))
@@ -108,9 +111,15 @@ def main() -> None:
     parser.add_argument("--delta", default="0.015", help="top displacements")
     parser.add_argument("--degree", default="2")
     parser.add_argument("--nu", default="0.3", help="Poisson ratios")
+    parser.add_argument(
+        "--chord-gap",
+        action="store_true",
+        help="measure the gap from the boundary segments' chords instead of the arc",
+    )
     parser.add_argument("--out", default=None, help="CSV file")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
+    gap = CHORD_GAP if args.chord_gap else ARC_GAP
     grid = itertools.product(
         [float(v) for v in args.nu.split(",")],
         [float(v) for v in args.degree.split(",")],
@@ -118,7 +127,9 @@ def main() -> None:
         [None if v == "default" else float(v) for v in args.alpha.split(",")],
         [float(v) for v in args.h.split(",")],
     )
-    rows = [solve(comm, h, alpha, delta, int(degree), nu) for nu, degree, delta, alpha, h in grid]
+    rows = [
+        solve(comm, h, alpha, delta, int(degree), nu, gap) for nu, degree, delta, alpha, h in grid
+    ]
     if comm.rank != 0:
         return
     print_table(rows)
