@@ -264,6 +264,7 @@ def test_for_and_if_build_the_square(tmp_path_factory):
     [
         ("plate_with_hole.geo", ["bottom", "top", "sides", "hole"]),
         ("clustered.geo", ["bottom", "right", "top", "left"]),
+        ("half_disk.geo", ["contact", "free", "top"]),
     ],
 )
 def test_example_meshes_mesh_as_gmsh_meshes_the_original(monkeypatch, name, parts):
