@@ -20,8 +20,9 @@ differentiating: with p_c(y) = p((y - c) / R),
 Two interchangeable backends compute the same numbers (see :data:`BACKENDS`):
 ``"numba"`` runs the compiled per-point kernels of :mod:`parefg.discretization.mls_kernels`
 (Cholesky of A); ``"numpy"`` is vectorized over points (padded neighbour lists,
-batched dense linear algebra) and serves as the reference and as the fallback when
-numba or a compiled weight is missing.  The neighbour lists come from
+batched dense linear algebra), serves as the reference and is the default of small
+problems, which it spares numba's start-up (:mod:`parefg.discretization.backends`), and
+the fallback when numba or a compiled weight is missing.  The neighbour lists come from
 :mod:`parefg.discretization.neighbours` (cell list or k-d tree, the same lists).
 """
 
@@ -30,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from parefg.discretization import mls_kernels
+from parefg.discretization import backends
 from parefg.discretization.neighbours import NeighbourSearch
 from parefg.discretization.weights import DEFAULT_WEIGHT, get_weight
 from parefg.errors import InputError
@@ -146,8 +147,9 @@ class MLS:
     support_factor : float, optional
         The dilation s, only quoted in error messages.
     backend : {"numba", "numpy"}, optional
-        How to compute (see :data:`BACKENDS`); by default numba when it is installed
-        and knows the weight, else numpy.
+        How to compute (see :data:`BACKENDS`); by default numba for large problems when
+        it is installed and knows the weight, else numpy
+        (:func:`parefg.discretization.backends.choose`).
     """
 
     def __init__(
@@ -175,10 +177,10 @@ class MLS:
         self.search = NeighbourSearch(self.nodes, self.support_radius, self.backend)
 
     def _choose_backend(self, backend):
-        """The backend to use: the requested one, or the first usable one of BACKENDS."""
-        compiled = mls_kernels.AVAILABLE and self.weight.code is not None
+        """The backend to use: the requested one, or the one of :func:`backends.choose`."""
+        compiled = backends.numba_installed() and self.weight.code is not None
         if backend is None:
-            return "numba" if compiled else "numpy"
+            return backends.choose(len(self.nodes), compiled)
         if backend not in BACKENDS:
             raise InputError(f"MLS backend must be one of {BACKENDS}, got {backend!r}")
         if backend == "numba" and not compiled:
@@ -302,6 +304,8 @@ class MLS:
         Errors are raised as the chunked numpy path raises them: in the first chunk
         holding a bad point, neighbour counts before condition numbers.
         """
+        from parefg.discretization import mls_kernels  # imports numba: only for this backend
+
         phi, dphi, condition = mls_kernels.shape_functions(
             points,
             self.nodes,
