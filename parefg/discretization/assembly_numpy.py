@@ -51,53 +51,76 @@ def _distinct(keys, n_keys):
 class _Slots:
     """The masked neighbour slots of the points, by group and by group shape.
 
-    Groups of equal shape (number of nodes, number of points) form a batch; every slot
-    gets its group g, its point's place t in the group and its node's local index i.
+    Groups of equal shape (number of nodes, number of points) form a batch.  Per batch:
+    its groups in order, their shape, the flat place (g size + i) P + t of each of its
+    slots in the stacked (n_groups_in_batch, size, P) matrices (group g in the batch, node
+    i local to the group, point t of the group) and the slot's point q and neighbour k.
     """
 
     def __init__(self, neighbours, mask, group_start, node_start, nodes):
         n_nodes = int(max(neighbours.max(initial=0), nodes.max(initial=0))) + 1
-        self.sizes, self.counts = np.diff(node_start), np.diff(group_start)  # (n_groups,)
+        self.sizes, counts = np.diff(node_start), np.diff(group_start)  # (n_groups,)
         group = _group_of_points(group_start)  # (n_points,)
         q, k = np.nonzero(mask)  # points and slots, in point order
-        self.q, self.k, g = q, k, group[q]
-        self.t = q - group_start[g]
+        g = group[q]
         # Local index of each slot's node: its place among the sorted keys g n + node.
-        node_keys = np.repeat(np.arange(len(self.sizes)), self.sizes) * n_nodes + nodes
-        self.i = np.searchsorted(node_keys, g * n_nodes + neighbours[q, k]) - node_start[g]
+        node_group = np.repeat(np.arange(len(self.sizes)), self.sizes)
+        node_keys = node_group * n_nodes + nodes  # sorted
+        slot_keys = g * n_nodes + neighbours[q, k]
+        if len(self.sizes) * n_nodes <= max(DENSE_KEYS, 4 * len(slot_keys)):
+            local = np.empty(len(self.sizes) * n_nodes, dtype=np.int64)
+            local[node_keys] = np.arange(len(nodes)) - node_start[node_group]
+            i = local[slot_keys]
+        else:
+            i = np.searchsorted(node_keys, slot_keys) - node_start[g]
         shapes, self.batch_of = np.unique(
-            self.sizes * (self.counts.max(initial=0) + 1) + self.counts, return_inverse=True
+            self.sizes * (counts.max(initial=0) + 1) + counts, return_inverse=True
         )
-        self.n_batches = len(shapes)
-        self.slot_order, self.slot_bounds = _split(self.batch_of[g], self.n_batches)
-        self.groups, _ = _split(self.batch_of, self.n_batches)  # groups by batch, in order
-        self.group_bounds = np.concatenate([[0], np.cumsum(np.bincount(self.batch_of, minlength=self.n_batches))])
+        n_batches = len(shapes)
+        slot_order, slot_bounds = _split(self.batch_of[g], n_batches)
+        groups, group_bounds = _split(self.batch_of, n_batches)  # groups by batch, in order
         self.place = np.empty(len(self.sizes), dtype=np.int64)  # group -> index in its batch
-        for b in range(self.n_batches):
-            members = self.groups[self.group_bounds[b] : self.group_bounds[b + 1]]
+        self.batches = []
+        for b in range(n_batches):
+            members = groups[group_bounds[b] : group_bounds[b + 1]]
             self.place[members] = np.arange(len(members))
-        self.g = g
+            size, n_points = int(self.sizes[members[0]]), int(counts[members[0]])
+            slots = slot_order[slot_bounds[b] : slot_bounds[b + 1]]
+            row = self.place[g[slots]] * size + i[slots]  # (g size + i) of each slot
+            t = (q - group_start[g])[slots]
+            slot = q[slots] * neighbours.shape[1] + k[slots]  # flat (q, k)
+            self.batches.append((members, size, n_points, row, t, slot))
 
-    def batches(self):
-        """(groups, size, n_points, slots) of each batch: its groups in order, their shape
-        and the indices of their slots (into q, k, t, i)."""
-        for b in range(self.n_batches):
-            groups = self.groups[self.group_bounds[b] : self.group_bounds[b + 1]]
-            slots = self.slot_order[self.slot_bounds[b] : self.slot_bounds[b + 1]]
-            yield groups, int(self.sizes[groups[0]]), int(self.counts[groups[0]]), slots
-
-    def matrices(self, values, scale, groups, size, n_points, slots):
-        """(n_groups_in_batch, size n_comp, n_points) stacked group matrices of the batch.
+    def matrices(self, values, scale, batch):
+        """(n_groups_in_batch, size n_comp, n_points) stacked group matrices of a batch.
 
         Entry (i n_comp + c, t) = scale[q] values[q, k, c] for the group's point t and its
-        node i (the numba kernel's _group_matrix).
+        node i (the numba kernel's _group_matrix); ``scale`` None stands for ones.
         """
+        members, size, n_points, row, t, slot = batch
         n_comp = values.shape[2]
-        out = np.zeros((len(groups), size, n_comp, n_points))
-        q, k = self.q[slots], self.k[slots]
-        scaled = values[q, k] if scale is None else scale[q, None] * values[q, k]
-        out[self.place[self.g[slots]], self.i[slots], :, self.t[slots]] = scaled
-        return out.reshape(len(groups), size * n_comp, n_points)
+        out = np.zeros(len(members) * size * n_comp * n_points)
+        picked = np.take(values.reshape(-1, n_comp), slot, axis=0)  # (n_slots, n_comp)
+        if scale is not None:
+            picked = np.take(scale, slot // values.shape[1])[:, None] * picked
+        base = row * (n_comp * n_points) + t
+        for c in range(n_comp):
+            out[base + c * n_points] = picked[:, c]
+        return out.reshape(len(members), size * n_comp, n_points)
+
+
+_CACHE: list = []  # the last _Slots and the arrays it was built from
+
+
+def _slots(neighbours, mask, group_start, node_start, nodes) -> _Slots:
+    """The _Slots of these arrays, reused while the caller passes the same ones again (the
+    pattern and both Gram matrices of a block; the arrays are not changed in between)."""
+    key = (neighbours, mask, group_start, node_start, nodes)
+    if _CACHE and all(a is b for a, b in zip(_CACHE[0], key, strict=True)):
+        return _CACHE[1]
+    slots = _Slots(*key)
+    _CACHE[:] = [key, slots]
+    return slots
 
 
 def _split(labels, n_labels):
@@ -117,22 +140,24 @@ def touched_pairs(neighbours, mask, group_start, node_start, nodes, local_of):
     """
     del local_of
     n_groups = len(group_start) - 1
-    slots = _Slots(neighbours, mask, group_start, node_start, nodes)
+    slots = _slots(neighbours, mask, group_start, node_start, nodes)
     ones = np.ones((*neighbours.shape, 1))
     found = []  # per batch: (groups of its pairs, local pairs), in batch order
     n_pairs = np.zeros(n_groups, dtype=np.int64)
-    for groups, size, n_points, batch_slots in slots.batches():
-        incidence = slots.matrices(ones, None, groups, size, n_points, batch_slots)
+    for batch in slots.batches:
+        groups, size = batch[0], batch[1]
+        incidence = slots.matrices(ones, None, batch)
         shared = incidence @ incidence.transpose(0, 2, 1)  # (n, size, size) shared points
         member, ij = np.nonzero(shared.reshape(len(groups), size * size) > 0.0)
-        n_pairs[groups] = np.bincount(member, minlength=len(groups))
-        found.append((groups[member], ij))
+        counts = np.bincount(member, minlength=len(groups))
+        n_pairs[groups] = counts
+        # A group's pairs are consecutive and in order: the e-th is its pair first + e.
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])[member]
+        found.append((groups[member], np.arange(len(member)) - first, ij))
     pair_start = np.concatenate([[0], np.cumsum(n_pairs)]).astype(np.int64)
     pair_local = np.empty(pair_start[-1], dtype=np.int32)
-    for group, ij in found:
-        # The pairs of a group are consecutive and in order within its batch's list.
-        first = np.searchsorted(group, group, side="left")
-        pair_local[pair_start[group] + np.arange(len(group)) - first] = ij
+    for group, offset, ij in found:
+        pair_local[pair_start[group] + offset] = ij
     pair_group = _group_of_points(pair_start)
     size = slots.sizes[pair_group]
     base = node_start[pair_group]
@@ -171,24 +196,29 @@ def gram_groups(
     """
     del local_of
     n_left, n_right = left.shape[2], right.shape[2]
-    slots = _Slots(neighbours, mask, group_start, node_start, nodes)
+    slots = _slots(neighbours, mask, group_start, node_start, nodes)
     pair_group = _group_of_points(pair_start)
-    pair_order, pair_bounds = _split(slots.batch_of[pair_group], slots.n_batches)
-    values = np.empty((len(pair_local), n_left, n_right))  # each pair's contribution
-    for b, (groups, size, n_points, batch_slots) in enumerate(slots.batches()):
-        weighted = slots.matrices(left, weights, groups, size, n_points, batch_slots)
-        plain = slots.matrices(right, None, groups, size, n_points, batch_slots)
+    pair_order, pair_bounds = _split(slots.batch_of[pair_group], len(slots.batches))
+    values = np.empty((n_left, n_right, len(pair_local)))  # each pair's contribution
+    for b, batch in enumerate(slots.batches):
+        groups, size = batch[0], batch[1]
+        weighted = slots.matrices(left, weights, batch)
+        plain = slots.matrices(right, None, batch)
         dense = weighted @ plain.transpose(0, 2, 1)  # (n, size n_left, size n_right)
-        dense = dense.reshape(len(groups), size, n_left, size, n_right)
         pairs = pair_order[pair_bounds[b] : pair_bounds[b + 1]]
-        ij = pair_local[pairs]
-        values[pairs] = dense[slots.place[pair_group[pairs]], ij // size, :, ij % size, :]
+        i, j = np.divmod(pair_local[pairs].astype(np.int64), size)
+        row = (slots.place[pair_group[pairs]] * size + i) * n_left
+        base = row * (size * n_right) + j * n_right  # flat (g, i n_left, j n_right) in dense
+        dense = dense.reshape(-1)
+        for a in range(n_left):
+            for c in range(n_right):
+                values[a, c, pairs] = np.take(dense, base + (a * size * n_right + c))
     # data[p] = ((data[p] + first group's value) + second's) + ...: bincount adds in order.
     n_entries = len(data)
     index = np.concatenate([np.arange(n_entries), pair_position])
     for a in range(n_left):
         for c in range(n_right):
-            summands = np.concatenate([data[:, a, c], values[:, a, c]])
+            summands = np.concatenate([data[:, a, c], values[a, c]])
             data[:, a, c] = np.bincount(index, weights=summands, minlength=n_entries)
 
 
