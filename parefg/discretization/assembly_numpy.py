@@ -77,19 +77,24 @@ class _Slots:
             self.sizes * (counts.max(initial=0) + 1) + counts, return_inverse=True
         )
         n_batches = len(shapes)
-        slot_order, slot_bounds = _split(self.batch_of[g], n_batches)
         groups, group_bounds = _split(self.batch_of, n_batches)  # groups by batch, in order
         self.place = np.empty(len(self.sizes), dtype=np.int64)  # group -> index in its batch
+        self.place[groups] = np.arange(len(groups)) - np.repeat(
+            group_bounds[:-1], np.diff(group_bounds)
+        )
+        # Per slot, sorted by batch: (g size + i) with g the group's place in its batch, the
+        # point's place t in the group, the flat slot q n_max + k.
+        slot_order, slot_bounds = _split(self.batch_of[g], n_batches)
+        g, i, q, k = g[slot_order], i[slot_order], q[slot_order], k[slot_order]
+        row = self.place[g] * self.sizes[g] + i
+        t = q - group_start[g]
+        slot = q * neighbours.shape[1] + k
         self.batches = []
         for b in range(n_batches):
             members = groups[group_bounds[b] : group_bounds[b + 1]]
-            self.place[members] = np.arange(len(members))
             size, n_points = int(self.sizes[members[0]]), int(counts[members[0]])
-            slots = slot_order[slot_bounds[b] : slot_bounds[b + 1]]
-            row = self.place[g[slots]] * size + i[slots]  # (g size + i) of each slot
-            t = (q - group_start[g])[slots]
-            slot = q[slots] * neighbours.shape[1] + k[slots]  # flat (q, k)
-            self.batches.append((members, size, n_points, row, t, slot))
+            part = slice(slot_bounds[b], slot_bounds[b + 1])
+            self.batches.append((members, size, n_points, row[part], t[part], slot[part]))
 
     def matrices(self, values, scale, batch):
         """(n_groups_in_batch, size n_comp, n_points) stacked group matrices of a batch.
