@@ -33,7 +33,8 @@ def _group_of_points(group_start):
 def group_nodes(neighbours, mask, group_start, n_nodes):
     """Sorted distinct nodes of each group of points: CSR (node_start, nodes) by group."""
     group = _group_of_points(group_start)
-    keys = _distinct((group[:, None] * n_nodes + neighbours)[mask], (len(group_start) - 1) * n_nodes)
+    n_keys = (len(group_start) - 1) * n_nodes
+    keys = _distinct((group[:, None] * n_nodes + neighbours)[mask], n_keys)
     counts = np.bincount(keys // n_nodes, minlength=len(group_start) - 1)
     node_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     return node_start, keys % n_nodes
@@ -206,7 +207,7 @@ def gram_groups(
     pair_order, pair_bounds = _split(slots.batch_of[pair_group], len(slots.batches))
     values = np.empty((n_left, n_right, len(pair_local)))  # each pair's contribution
     for b, batch in enumerate(slots.batches):
-        groups, size = batch[0], batch[1]
+        size = batch[1]
         weighted = slots.matrices(left, weights, batch)
         plain = slots.matrices(right, None, batch)
         dense = weighted @ plain.transpose(0, 2, 1)  # (n, size n_left, size n_right)

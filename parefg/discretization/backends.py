@@ -21,9 +21,11 @@ import os
 
 from parefg.errors import InputError
 
-# Nodes from which numba's kernels win a whole run, one-off costs included
-# (scripts/bench/bench_backends.py).
-NUMBA_MIN_NODES = 6000
+# Nodes from which numba's kernels win a whole run, one-off costs included.  Measured by
+# scripts/bench/bench_backends.py (square, m = 2, medians of 3): warm numpy - warm numba
+# (search + MLS + assembly) is 0.24 s at 289 nodes and 0.38 s at 441, numba's one-off cost
+# in a fresh process 0.35 s: the crossover is at ~400 nodes.
+NUMBA_MIN_NODES = 400
 ENVIRONMENT = "PAREFG_KERNELS"
 NAMES = ("numba", "numpy")
 

@@ -29,7 +29,7 @@ from mpi4py import MPI
 from parefg.discretization.operators import build_discretization
 from parefg.scene.loader import load_scene
 
-SPACINGS = [1 / 16, 1 / 24, 1 / 32, 1 / 48, 1 / 64, 1 / 80, 1 / 96]
+SPACINGS = [1 / 12, 1 / 16, 1 / 20, 1 / 24, 1 / 28, 1 / 32]
 PHASES = ("neighbours", "mls", "assembly")
 FRESH = """
 import os, time
@@ -89,7 +89,7 @@ def main():
     one_off = (fresh["numba"] - fresh["numpy"]) - (rows[0]["numba_s"] - rows[0]["numpy_s"])
     print(f"fresh build h={h0:g}: numpy {fresh['numpy']:.3f}s, numba {fresh['numba']:.3f}s")
     print(f"numba one-off cost in a fresh process: {one_off:.3f}s")
-    print("\n| h | nodes | numpy warm (s) | numba warm (s) | numpy - numba (s) | fresh run prefers |")
+    print("\n| h | nodes | numpy warm (s) | numba warm (s) | numpy - numba (s) | a run prefers |")
     print("|---|---|---|---|---|---|")
     for row in rows:
         gain = row["numpy_s"] - row["numba_s"]
