@@ -70,7 +70,10 @@ def test_boundary_kinds_are_one_enum():
     assert "'dirichlet', 'neumann', 'contact'" in _message(excinfo)
 
 
-def test_every_weight_the_kernel_compiles_is_used_by_mls():
+def test_every_weight_the_kernel_compiles_is_used_by_mls(monkeypatch):
+    # 25 nodes take the numpy kernels by default (discretization/backends.py): where numba
+    # is chosen, every registered weight must run on it.
+    monkeypatch.setenv("PAREFG_KERNELS", "numba")
     nodes = np.stack(np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5)), -1).reshape(-1, 2)
     for name, weight in weights.WEIGHTS.items():
         assert weight.code is not None

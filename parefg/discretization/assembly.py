@@ -20,8 +20,20 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from parefg.discretization import assembly_kernels as kernels
+from parefg.discretization import assembly_numpy, backends
 from parefg.discretization.mls import ShapeValues
+
+
+def kernels_for(n_nodes: int):
+    """The module of assembly kernels for a problem of ``n_nodes`` global nodes: the numba
+    one (:mod:`~parefg.discretization.assembly_kernels`, imported here, on first use) or
+    the numpy one (:mod:`~parefg.discretization.assembly_numpy`); see
+    :mod:`parefg.discretization.backends`."""
+    if backends.choose(n_nodes) == "numba":
+        from parefg.discretization import assembly_kernels  # imports numba
+
+        return assembly_kernels
+    return assembly_numpy
 
 
 def sorted_slots(shape: ShapeValues, n_nodes: int):
@@ -132,6 +144,7 @@ class Coupling:
                 empty.astype(np.int32),
                 empty,
             )
+        kernels = kernels_for(n_nodes)
         node_start, nodes = kernels.group_nodes(shape.neighbours, shape.mask, group_start, n_nodes)
         local_of = np.zeros(n_nodes, dtype=np.int64)  # scratch of the kernels
         pair_start, pair_local, rows, cols = kernels.touched_pairs(
@@ -160,7 +173,7 @@ class Coupling:
         data = np.zeros((len(self.indices), left.shape[2], right.shape[2]))
         if len(self.pair_local) == 0:
             return data
-        kernels.gram_groups(
+        kernels_for(self.n_nodes).gram_groups(
             np.ascontiguousarray(left, dtype=np.float64),
             np.ascontiguousarray(right, dtype=np.float64),
             np.ascontiguousarray(weights, dtype=np.float64),
@@ -191,7 +204,7 @@ def interleaved(indptr, indices, blocks: np.ndarray, diagonal_only: bool = False
 
     See :meth:`Coupling.interleaved`.
     """
-    out_ptr, out_indices, data = kernels.interleave_blocks(
+    out_ptr, out_indices, data = kernels_for(len(indptr) - 1).interleave_blocks(
         indptr, indices, np.ascontiguousarray(blocks, dtype=np.float64), diagonal_only
     )
     n_dofs = 2 * (len(indptr) - 1)

@@ -28,8 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from parefg.discretization import assembly_kernels as kernels
-from parefg.discretization.assembly import sorted_slots, value_operator
+from parefg.discretization.assembly import kernels_for, sorted_slots, value_operator
 from parefg.discretization.consistent_gradients import ConsistencySums, corrected_gradients
 from parefg.discretization.mls import MLS, ShapeValues
 from parefg.discretization.point_gradients import sorted_gradients
@@ -70,6 +69,7 @@ def _blocks(cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _pairs(neighbours, mask, group_start, n_nodes):
     """The groups' nodes and coupled pairs (see Coupling.of) of one block."""
+    kernels = kernels_for(n_nodes)
     node_start, nodes = kernels.group_nodes(neighbours, mask, group_start, n_nodes)
     local_of = np.zeros(n_nodes, dtype=np.int64)  # scratch of the kernels
     pairs = kernels.touched_pairs(neighbours, mask, group_start, node_start, nodes, local_of)
@@ -100,6 +100,7 @@ class BlockPasses:
     def __init__(self, mls: MLS, quadrature: Quadrature, timer):
         self.mls, self.quadrature, self.timer = mls, quadrature, timer
         self.n_nodes = len(mls.nodes)
+        self.kernels = kernels_for(self.n_nodes)
         bounds, self.group_start = _blocks(quadrature.cell)
         self.blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         self.searched: list[tuple | None] = [None] * len(self.blocks)  # of a one-block domain
@@ -138,12 +139,12 @@ class BlockPasses:
             neighbours, mask, *_, (_, _, pair_row, pair_col) = self.block_pairs(index)
             self.padded_slots += neighbours.size
             with timer("assembly"):
-                block_ptr, block_indices, _ = kernels.pairs_to_csr(pair_row, pair_col, n_nodes)
+                block_ptr, block_indices, _ = self.kernels.pairs_to_csr(pair_row, pair_col, n_nodes)
                 rows.append(np.repeat(np.arange(n_nodes), np.diff(block_ptr)))
                 cols.append(block_indices)
                 row_lengths[first:last] = mask.sum(axis=1)
         with timer("assembly"):
-            indptr, indices, _ = kernels.pairs_to_csr(
+            indptr, indices, _ = self.kernels.pairs_to_csr(
                 np.concatenate(rows), np.concatenate(cols), n_nodes
             )
         return indptr, indices, row_lengths
@@ -199,13 +200,13 @@ class BlockPasses:
             low, high = min(low, shape.condition.min()), max(high, shape.condition.max())
             with timer("assembly"):
                 groups = self.groups_of(first, last)
-                position = kernels.pair_positions(indptr, indices, pair_row, pair_col)
+                position = self.kernels.pair_positions(indptr, indices, pair_row, pair_col)
                 weights = quadrature.weights[first:last]
                 local_of = np.zeros(n_nodes, dtype=np.int64)
                 block_pairs = (neighbours, mask, groups, node_start, nodes, pair_start, pair_local)
                 common = (*block_pairs, position)  # the arguments of gram_groups for M and K
                 phi = np.ascontiguousarray(shape.phi[:, :, None])
-                kernels.gram_groups(phi, phi, rho * weights, *common, mass, local_of)
+                self.kernels.gram_groups(phi, phi, rho * weights, *common, mass, local_of)
                 dphi = np.ascontiguousarray(shape.dphi)
                 test = dphi  # the test function's gradients: VCI corrects these only
                 if correction is not None:
@@ -218,7 +219,7 @@ class BlockPasses:
                         mls.degree,
                         mls.backend == "numba",
                     )
-                kernels.gram_groups(
+                self.kernels.gram_groups(
                     test, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
                 )
                 slots = sorted_slots(shape, n_nodes)

@@ -20,8 +20,9 @@ differentiating: with p_c(y) = p((y - c) / R),
 Two interchangeable backends compute the same numbers (see :data:`BACKENDS`):
 ``"numba"`` runs the compiled per-point kernels of :mod:`parefg.discretization.mls_kernels`
 (Cholesky of A); ``"numpy"`` is vectorized over points (padded neighbour lists,
-batched dense linear algebra) and serves as the reference and as the fallback when
-numba or a compiled weight is missing.  The neighbour lists come from
+batched dense linear algebra), serves as the reference and is the default of small
+problems, which it spares numba's start-up (:mod:`parefg.discretization.backends`), and
+the fallback when numba or a compiled weight is missing.  The neighbour lists come from
 :mod:`parefg.discretization.neighbours` (cell list or k-d tree, the same lists).
 """
 
@@ -30,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from parefg.discretization import mls_kernels
+from parefg.discretization import backends
 from parefg.discretization.neighbours import NeighbourSearch
 from parefg.discretization.weights import DEFAULT_WEIGHT, get_weight
 from parefg.errors import InputError
@@ -45,8 +46,10 @@ MAX_CONDITION = 1e12
 # comes out of either factorization (LU, Cholesky, any SIMD path) with an estimate >= 4e16
 # or a breakdown (inf), while an estimate below 1e14 is accurate to kappa eps < 2 %.
 SINGULAR_CONDITION = 1e14
-# Points per batch of dense linear algebra: bounds memory at about 100 MB for m = 3.
-CHUNK_POINTS = 20000
+# Points per batch of the numpy backend's dense linear algebra (a few MB per array): batches
+# that stay in cache and reuse the same memory are ~3x faster in a fresh process than
+# 20000-point ones, which fault in tens of MB per temporary (default scene: mls 0.32 -> 0.10 s).
+CHUNK_POINTS = 2048
 # Backends by name; the default is the first one usable for the chosen weight.
 BACKENDS = ("numba", "numpy")
 
@@ -119,14 +122,21 @@ def pascal_basis(xi: np.ndarray, degree: int) -> np.ndarray:
     """
     dim = xi.shape[-1]
     exponents = basis_exponents(degree, dim)
-    # Powers xi_k^0..xi_k^m by repeated products (cheaper than **), (d, ..., m + 1).
-    powers = np.empty((dim, *xi.shape[:-1], degree + 1))
-    powers[..., 0] = 1.0
-    for power in range(1, degree + 1):
-        powers[..., power] = powers[..., power - 1] * np.moveaxis(xi, -1, 0)
-    basis = powers[0][..., exponents[:, 0]]
-    for axis in range(1, dim):
-        basis = basis * powers[axis][..., exponents[:, axis]]
+    # Powers xi_k^0..xi_k^m by repeated products (cheaper than **), [axis][power] (...,).
+    powers = []
+    for axis in range(dim):
+        coordinate = xi[..., axis]
+        powers.append([np.ones(xi.shape[:-1]), coordinate])
+        for power in range(2, degree + 1):
+            powers[axis].append(powers[axis][power - 1] * coordinate)
+    # Column j = prod_k xi_k^(a_jk), multiplied in axis order; one column at a time (a
+    # gather of the powers along the last axis costs several times more).
+    basis = np.empty((*xi.shape[:-1], len(exponents)))
+    for j, row in enumerate(exponents):
+        column = powers[0][row[0]]
+        for axis in range(1, dim):
+            column = column * powers[axis][row[axis]]
+        basis[..., j] = column
     return basis
 
 
@@ -146,8 +156,9 @@ class MLS:
     support_factor : float, optional
         The dilation s, only quoted in error messages.
     backend : {"numba", "numpy"}, optional
-        How to compute (see :data:`BACKENDS`); by default numba when it is installed
-        and knows the weight, else numpy.
+        How to compute (see :data:`BACKENDS`); by default numba for large problems when
+        it is installed and knows the weight, else numpy
+        (:func:`parefg.discretization.backends.choose`).
     """
 
     def __init__(
@@ -175,10 +186,10 @@ class MLS:
         self.search = NeighbourSearch(self.nodes, self.support_radius, self.backend)
 
     def _choose_backend(self, backend):
-        """The backend to use: the requested one, or the first usable one of BACKENDS."""
-        compiled = mls_kernels.AVAILABLE and self.weight.code is not None
+        """The backend to use: the requested one, or the one of :func:`backends.choose`."""
+        compiled = backends.numba_installed() and self.weight.code is not None
         if backend is None:
-            return "numba" if compiled else "numpy"
+            return backends.choose(len(self.nodes), compiled)
         if backend not in BACKENDS:
             raise InputError(f"MLS backend must be one of {BACKENDS}, got {backend!r}")
         if backend == "numba" and not compiled:
@@ -274,27 +285,48 @@ class MLS:
         """A^-1 (n, n_basis, n_basis) and the condition estimate ||A||_F ||A^-1||_F (n,).
 
         The Frobenius estimate bounds the 2-norm condition number from above, by at
-        most a factor n_basis, at the price of the inverse that is needed anyway.
-        When LU breaks down on an (exactly) singular matrix, the chunk falls back to
-        eigenvalues: matrices beyond ``SINGULAR_CONDITION`` get an infinite condition
-        (singular whatever the estimate) and the others are inverted, so that a badly
-        conditioned point is classified as it would be in a chunk without breakdown.
+        most a factor n_basis, at the price of the inverse that is needed anyway.  As the
+        numba kernel (mls_kernels._cholesky, _inverse, _frobenius_condition, the same
+        operations in the same order), vectorized over the points: A = L L^T by Cholesky,
+        A^-1 column by column by forward and back substitution.  A matrix whose Cholesky
+        breaks down (a pivot not positive) gets an infinite condition (singular) and an
+        unspecified inverse, without changing the other matrices' results.  (np.linalg.inv
+        calls LAPACK once per 6 x 6 matrix, ~10 us each: most of a small run's MLS time.)
         """
-        try:
-            inverse = np.linalg.inv(moment)
-        except np.linalg.LinAlgError:
-            eigenvalues = np.linalg.eigvalsh(moment)  # (n, n_basis), ascending
-            invertible = eigenvalues[:, 0] * SINGULAR_CONDITION > eigenvalues[:, -1]
-            inverse = np.zeros_like(moment)
-            inverse[invertible] = np.linalg.inv(moment[invertible])
-            condition = MLS._frobenius_condition(moment, inverse)
-            return inverse, np.where(invertible, condition, np.inf)
-        return inverse, MLS._frobenius_condition(moment, inverse)
-
-    @staticmethod
-    def _frobenius_condition(moment, inverse):
-        """||A||_F ||A^-1||_F for stacks of matrices, (n,)."""
-        return np.linalg.norm(moment, axis=(1, 2)) * np.linalg.norm(inverse, axis=(1, 2))
+        n_basis = moment.shape[1]
+        entries = moment.transpose(1, 2, 0)  # (n_basis, n_basis, n): [i][j] a vector over points
+        factor = [[np.zeros(0)] * n_basis for _ in range(n_basis)]  # lower triangle used
+        valid = np.ones(len(moment), dtype=bool)
+        for j in range(n_basis):
+            pivot = entries[j, j].copy()
+            for k in range(j):
+                pivot -= factor[j][k] * factor[j][k]
+            valid &= pivot > 0.0
+            factor[j][j] = np.sqrt(np.where(valid, pivot, 1.0))  # broken rows: any value
+            for i in range(j + 1, n_basis):
+                entry = entries[i, j].copy()
+                for k in range(j):
+                    entry -= factor[i][k] * factor[j][k]
+                factor[i][j] = entry / factor[j][j]
+        inverse = np.empty((n_basis, n_basis, len(moment)))
+        for column in range(n_basis):
+            for i in range(n_basis):  # L y = e_column
+                value = np.full(len(moment), 1.0 if i == column else 0.0)
+                for k in range(i):
+                    value -= factor[i][k] * inverse[k, column]
+                inverse[i, column] = value / factor[i][i]
+            for i in range(n_basis - 1, -1, -1):  # L^T z = y
+                value = inverse[i, column].copy()
+                for k in range(i + 1, n_basis):
+                    value -= factor[k][i] * inverse[k, column]
+                inverse[i, column] = value / factor[i][i]
+        moment_sum, inverse_sum = np.zeros(len(moment)), np.zeros(len(moment))
+        for i in range(n_basis):
+            for j in range(n_basis):
+                moment_sum += entries[i, j] * entries[i, j]
+                inverse_sum += inverse[i, j] * inverse[i, j]
+        condition = np.where(valid, np.sqrt(moment_sum) * np.sqrt(inverse_sum), np.inf)
+        return np.ascontiguousarray(inverse.transpose(2, 0, 1)), condition
 
     def _evaluate_compiled(self, points, neighbours, mask, gradients):
         """:meth:`evaluate` by the numba kernel, all points at once.
@@ -302,6 +334,8 @@ class MLS:
         Errors are raised as the chunked numpy path raises them: in the first chunk
         holding a bad point, neighbour counts before condition numbers.
         """
+        from parefg.discretization import mls_kernels  # imports numba: only for this backend
+
         phi, dphi, condition = mls_kernels.shape_functions(
             points,
             self.nodes,

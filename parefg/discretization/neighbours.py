@@ -14,8 +14,6 @@ Nothing here is collective.
 
 import numpy as np
 
-from parefg.discretization import mls_kernels
-
 
 class NeighbourSearch:
     """Covering-node lists of one node cloud.
@@ -35,6 +33,8 @@ class NeighbourSearch:
         self.cells = None  # the compiled search's cell list
         self.tree = None  # the numpy search's k-d tree
         if backend == "numba":
+            from parefg.discretization import mls_kernels  # imports numba: only for this backend
+
             self.cells = mls_kernels.build_cells(nodes, self.max_radius)
         else:
             from scipy.spatial import cKDTree  # ~50 ms to import: only for this backend
@@ -53,6 +53,8 @@ class NeighbourSearch:
         if len(points) == 0:
             return np.zeros((0, 0), dtype=np.int64), np.zeros((0, 0), dtype=bool)
         if self.backend == "numba":
+            from parefg.discretization import mls_kernels
+
             arguments = (points, self.nodes, self.support_radius, self.max_radius, self.cells)
             n_max = max(int(mls_kernels.count_neighbours(*arguments).max()), 1)
             return mls_kernels.fill_neighbours(*arguments, n_max)

@@ -17,7 +17,9 @@ in interleaved runs, with the ratio this / baseline:
 4. The fixed costs, in CPU seconds of one fresh process each (robust to the load): the
    imports a run may need, importing gmsh and meshing the default square (the ``mesh``
    phase), and importing numba, its first cached kernel (numba's one-off
-   initialization) and the next one (the ``neighbours`` phase is the first kernel call).
+   initialization) and the next one (the ``neighbours`` phase is the first kernel call of
+   a run from parefg.discretization.backends.NUMBA_MIN_NODES nodes on; the default scene
+   is smaller and imports no numba).
    This tree only.
 
 The user cache of the measured runs is a temporary directory (warmed by one run per

@@ -105,6 +105,10 @@ class Runner:
     """Runs one case of either code and returns (seconds, result row); imports done once."""
 
     def __init__(self, getfem_square):
+        # One warm process runs every case: numba's one-off start-up (import, cached
+        # kernels) is paid once, after which its kernels beat numpy's at every size
+        # (scripts/bench/bench_backends.py), so the small cases use them too.
+        os.environ.setdefault("PAREFG_KERNELS", "numba")
         import petsc4py
 
         import parefg  # noqa: F401  (PETSC_DIR)

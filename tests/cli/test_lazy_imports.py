@@ -1,6 +1,7 @@
 """Light commands stay light: ``import parefg.cli``, ``parefg --help`` and ``parefg scenes``
 import none of the heavy layers a run needs (sympy, matplotlib, h5py, numba, gmsh), and a
-run whose scene data and mesh are cached imports neither sympy nor gmsh.
+run whose scene data and mesh are cached imports neither sympy nor gmsh, and a run of the
+default scene (small: numpy kernels, parefg.discretization.backends) never imports numba.
 
 Each case runs in a fresh interpreter (``sys.modules`` of this one is full of them) and
 prints, as its last line, the heavy modules it ended up with.
@@ -46,14 +47,16 @@ def test_light_commands_import_no_heavy_module(argv):
 @pytest.mark.serial_only
 def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path):
     """The first run derives the scene's data (sympy) and meshes (gmsh), the next one reads
-    both from the user cache: same results, and neither sympy nor gmsh imported."""
+    both from the user cache: same results, and neither sympy nor gmsh imported.  Neither
+    run imports numba (the default scene is below backends.NUMBA_MIN_NODES)."""
     env = {**mpi_env(), "PAREFG_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("PAREFG_SCENE_CACHE", None)
+    env.pop("PAREFG_KERNELS", None)
     imported, results = [], []
     for run in ("derived", "cached"):
         out = tmp_path / run
         argv = ["run", "square", "--quiet", "--out", str(out), *QUICK]
-        probe = PROBE.format(argv=argv, heavy=("gmsh", "sympy"))
+        probe = PROBE.format(argv=argv, heavy=("gmsh", "numba", "sympy"))
         result = subprocess.run(
             [sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=300
         )

@@ -13,7 +13,7 @@ import sys
 import pytest
 from conftest import mpi_env
 
-from parefg.discretization import assembly_kernels, mls_kernels
+from parefg.discretization import assembly_kernels, backends, mls_kernels
 
 try:
     import numba
@@ -50,8 +50,10 @@ for module in (mls_kernels, assembly_kernels):
 
 def _compilations() -> dict[str, int]:
     """Kernel -> compilations in a fresh process that uses the kernels as a run does."""
+    # A problem this small takes the numpy kernels by default (backends.py): force numba.
+    env = mpi_env() | {backends.ENVIRONMENT: "numba"}
     result = subprocess.run(
-        [sys.executable, "-c", PROBE], capture_output=True, text=True, env=mpi_env(), timeout=300
+        [sys.executable, "-c", PROBE], capture_output=True, text=True, env=env, timeout=300
     )
     assert result.returncode == 0, result.stderr
     rows = [line.split() for line in result.stdout.splitlines()]
