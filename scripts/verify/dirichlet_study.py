@@ -126,9 +126,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for shape, degree, method, parameter, quadrature, support, integration in grid:
             path = str(Path(tmp) / f"{shape}.toml")
-            if comm.rank == 0:
-                Path(path).write_text(scene_text(shape))
-            comm.Barrier()
+            Path(path).write_text(scene_text(shape))  # each rank's own temporary directory
             group = []
             for h in sizes:
                 case = overrides(

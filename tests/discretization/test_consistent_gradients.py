@@ -85,10 +85,8 @@ u = {EXACT_U}
 
 
 def _builder(comm, tmp_path, degree: int, quadrature: int):
-    path = tmp_path / "polygon.toml"
-    if comm.rank == 0:
-        path.write_text(POLYGON_SCENE)
-    comm.Barrier()
+    path = tmp_path / "polygon.toml"  # each rank's own tmp_path
+    path.write_text(POLYGON_SCENE)
     sets = ["discretization.h=0.2", f"discretization.degree={degree}"]
     sets.append(f"discretization.quadrature={quadrature}")
     scene = load_scene(str(path), sets)
@@ -167,10 +165,8 @@ def test_unstructured_m3_accuracy(comm, tmp_path):
     """Polygon square, m = 3, default quadrature: VCI's H1 error below a third of Gauss's at
     h = 1/16 and its H1 rate near the theory's m = 3 (measured: 8.3e-5, 1.04e-5, rate 3.0;
     Gauss 1.36e-4, 7.09e-5, rate 0.94)."""
-    path = tmp_path / "square_polygon.toml"
-    if comm.rank == 0:
-        path.write_text(SQUARE_POLYGON)
-    comm.Barrier()
+    path = tmp_path / "square_polygon.toml"  # each rank's own tmp_path
+    path.write_text(SQUARE_POLYGON)
     errors = {}
     sizes = (0.125, 0.0625)
     for integration in ("gauss", "vci"):
