@@ -32,6 +32,13 @@ def _basis(y0, y1, radius, exponents, powers, p, dp):
 
 
 @_jit
+def _entry_basis(point, node, radius, exponents, powers, p, dp):
+    """p and its gradient (see _basis) at ``point`` for the node at ``node``."""
+    y0, y1 = (point[0] - node[0]) / radius, (point[1] - node[1]) / radius
+    _basis(y0, y1, radius, exponents, powers, p, dp)
+
+
+@_jit
 def domain_sums(
     points, weights, neighbours, mask, phi, dphi, nodes, radius, exponents, moments, rhs
 ):
@@ -45,9 +52,7 @@ def domain_sums(
             if not mask[q, k]:
                 continue
             node = neighbours[q, k]
-            r = radius[node]
-            y0, y1 = (points[q, 0] - nodes[node, 0]) / r, (points[q, 1] - nodes[node, 1]) / r
-            _basis(y0, y1, r, exponents, powers, p, dp)
+            _entry_basis(points[q], nodes[node], radius[node], exponents, powers, p, dp)
             value, gradient0, gradient1 = phi[q, k], dphi[q, k, 0], dphi[q, k, 1]
             for c in range(n_p):
                 scaled = w * p[c]
@@ -68,9 +73,7 @@ def boundary_sums(points, weights, normals, neighbours, mask, phi, nodes, radius
             if not mask[q, k]:
                 continue
             node = neighbours[q, k]
-            r = radius[node]
-            y0, y1 = (points[q, 0] - nodes[node, 0]) / r, (points[q, 1] - nodes[node, 1]) / r
-            _basis(y0, y1, r, exponents, powers, p, dp)
+            _entry_basis(points[q], nodes[node], radius[node], exponents, powers, p, dp)
             scale = weights[q] * phi[q, k]
             for c in range(n_p):
                 rhs[node, 0, c] += scale * normals[q, 0] * p[c]
@@ -90,9 +93,7 @@ def correct(points, neighbours, mask, dphi, nodes, radius, exponents, coefficien
             if not mask[q, k]:
                 continue
             node = neighbours[q, k]
-            r = radius[node]
-            y0, y1 = (points[q, 0] - nodes[node, 0]) / r, (points[q, 1] - nodes[node, 1]) / r
-            _basis(y0, y1, r, exponents, powers, p, dp)
+            _entry_basis(points[q], nodes[node], radius[node], exponents, powers, p, dp)
             for c in range(n_p):
                 out[q, k, 0] += coefficients[node, 0, c] * p[c]
                 out[q, k, 1] += coefficients[node, 1, c] * p[c]

@@ -25,7 +25,7 @@ from parefg.discretization.domain_assembly import BlockPasses
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients, sorted_gradients
 from parefg.discretization.point_set import PointSet, point_operator
-from parefg.discretization.quadrature import Quadrature, cell_quadrature, segment_quadrature
+from parefg.discretization.quadrature import Quadrature, cell_quadrature
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.distribute import partition_on_root
 from parefg.geometry.gmsh_mesh import build_node_cloud
@@ -176,7 +176,8 @@ class _Builder(BoundaryOperators):
             sums = ConsistencySums(
                 mls.nodes, mls.support_radius, mls.degree, compiled=mls.backend == "numba"
             )
-            self._collectively(lambda: self._consistency_sums(passes, sums))
+            self._collectively(lambda: passes.add_consistency_sums(sums))
+            self._boundary_consistency_sums(sums)
             with phase(self.timings, "assembly"):
                 correction = node_corrections(self.comm, sums, self.node_ranges)
         operators = self._collectively(
@@ -216,18 +217,11 @@ class _Builder(BoundaryOperators):
         raise_everywhere(self.comm, error)
         return result
 
-    def _consistency_sums(self, passes: BlockPasses, sums: ConsistencySums) -> None:
-        """This rank's VCI terms: its domain points' and its segments' (all of the boundary)."""
-        passes.add_consistency_sums(sums)
-        cloud = self.cloud
-        mine = np.flatnonzero(self.partition.segment_owner == self.comm.rank)
-        boundary = segment_quadrature(
-            cloud.coords, cloud.segments, self.scene.discretization.quadrature, segment_ids=mine
-        )
-        with phase(self.timings, "neighbours"):
-            neighbours = self.mls.find_neighbours(boundary.points)
-        with phase(self.timings, "mls"):
-            shape = self.mls.evaluate(boundary.points, gradients=False, neighbours=neighbours)
+    def _boundary_consistency_sums(self, sums: ConsistencySums) -> None:
+        """The VCI terms of this rank's segments of every part (the whole boundary)."""
+        every_part = list(range(len(self.cloud.part_names)))
+        boundary, _ = self._boundary_quadrature(every_part)
+        shape = self._shape(boundary.points, gradients=False)
         with phase(self.timings, "assembly"):
             assert boundary.normals is not None
             sums.add_boundary(shape, boundary.points, boundary.weights, boundary.normals)
@@ -237,13 +231,9 @@ class _Builder(BoundaryOperators):
         with phase(self.timings, "neighbours"):
             neighbours = self.mls.find_neighbours(points)
         with phase(self.timings, "mls"):
-            shape, error = None, None
-            try:
-                shape = self.mls.evaluate(points, gradients=gradients, neighbours=neighbours)
-            except MLSError as failure:
-                error = failure
-            raise_everywhere(self.comm, error)
-            assert shape is not None  # no rank failed
+            shape = self._collectively(
+                lambda: self.mls.evaluate(points, gradients=gradients, neighbours=neighbours)
+            )
             self.conditions.append(shape.condition)
         return shape
 

@@ -100,7 +100,8 @@ def _corrections(builder, compiled: bool):
     passes = BlockPasses(mls, quadrature, lambda name: phase(builder.timings, name))
     passes.pattern()
     sums = ConsistencySums(mls.nodes, mls.support_radius, mls.degree, compiled=compiled)
-    builder._consistency_sums(passes, sums)
+    passes.add_consistency_sums(sums)
+    builder._boundary_consistency_sums(sums)
     coefficients = node_corrections(builder.comm, sums, builder.node_ranges)
     shape = mls.evaluate(quadrature.points, gradients=True)
     corrected = corrected_gradients(
