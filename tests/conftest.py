@@ -21,6 +21,8 @@ from pathlib import Path
 import pytest
 from mpi4py import MPI
 
+pytest_plugins = ["rank_sync"]  # a test failing on one rank only aborts the MPI run
+
 REPO = Path(__file__).resolve().parents[1]
 PAREFG = str(Path(sys.executable).with_name("parefg"))
 
