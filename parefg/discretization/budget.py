@@ -102,6 +102,35 @@ def machine_memory() -> float:
     return min(_meminfo_available(), _cgroup_headroom(), _address_space_headroom())
 
 
+def _cgroup_limit() -> float:
+    """This process's cgroup memory limit (v2 or v1) in bytes; inf without one."""
+    for limit_file, _ in CGROUP_FILES:
+        try:
+            limit = Path(limit_file).read_text().strip()
+        except OSError:
+            continue
+        if limit != "max" and float(limit) < 2**60:
+            return float(limit)
+    return math.inf
+
+
+def machine_capacity() -> float:
+    """Bytes the machine could give a run at all: the least of MemTotal, cgroup and ulimit limits.
+
+    Unlike :func:`machine_memory` it does not move with the machine's load, so a decision
+    taken on it (the mesh size floor) gives the same mesh in every run on this machine.
+    """
+    total = _proc_kib("/proc/meminfo", "MemTotal")
+    if total is None:
+        try:
+            total = float(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (ValueError, OSError, AttributeError):
+            total = math.inf
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    address_space = math.inf if soft == resource.RLIM_INFINITY else float(soft)
+    return min(total, _cgroup_limit(), address_space)
+
+
 def _format_count(count: float) -> str:
     """A count for a message: 0.25, 38, 4225, 1.0e+12, "more than 1e300"."""
     if not math.isfinite(count):
@@ -181,6 +210,10 @@ class Budget:
         Ranks of the run (the shared work is split among them).
     given : bool
         Whether the limit is --max-memory (else the machine's available memory).
+    floor_rank_bytes : float or None
+        Bytes per rank that :meth:`size_floor` budgets for: --max-memory, else a share of
+        the machine's capacity (not of its free memory, which moves with the load, so that
+        a .geo file is meshed alike in every run on one machine).  None: ``rank_bytes``.
     """
 
     scene: BudgetedScene
@@ -188,11 +221,14 @@ class Budget:
     host_ranks: int
     n_ranks: int
     given: bool
+    floor_rank_bytes: float | None = None
 
-    def refusal(self, size: Size, found: str = "needs", slack: float = 1.0) -> str | None:
+    def refusal(
+        self, size: Size, found: str = "needs", slack: float = 1.0, rank_bytes: float | None = None
+    ) -> str | None:
         """The one-line reason ``size`` does not fit (in ``slack`` times the limit), or None.
 
-        Not collective.
+        ``rank_bytes`` replaces the budget's own limit per rank.  Not collective.
         """
         scene = self.scene
         what = (
@@ -212,7 +248,7 @@ class Budget:
                 "a smaller support or more ranks"
             )
         needed = memory_per_rank(size, self.n_ranks, uses_direct_solver(scene))
-        if needed <= slack * self.rank_bytes:
+        if needed <= slack * (self.rank_bytes if rank_bytes is None else rank_bytes):
             return None
         limit = "--max-memory" if self.given else "80% of the available memory"
         return (
@@ -245,13 +281,17 @@ class Budget:
         Threshold field's SizeMin) gets a mesh no finer than a bounding box filled at
         the floor, which the budget holds, instead of exhausting the machine inside
         gmsh.  Legitimate refinement is untouched while the budget allows it.  Found by
-        bisection on log h (the estimate only grows as h shrinks).  Not collective.
+        bisection on log h (the estimate only grows as h shrinks).  The limit is
+        ``floor_rank_bytes`` (the machine's capacity, not its load), so the floor and the
+        mesh are the same in every run on one machine; a mesh refined beyond the free
+        memory is then refused by :meth:`check_cloud`.  Not collective.
         """
         h = self.scene.discretization.h
+        limit = self.rank_bytes if self.floor_rank_bytes is None else self.floor_rank_bytes
 
         def fits(size_h: float) -> bool:
             size = unstructured_size(self.scene, area, perimeter, size_h)
-            return self.refusal(size) is None
+            return self.refusal(size, rank_bytes=limit) is None
 
         fine, coarse = h * FLOOR_RANGE, h
         if fits(fine):
@@ -298,11 +338,18 @@ def make_budget(comm, scene, max_memory: float | None = None) -> Budget:
     host = comm.Split_type(MPI.COMM_TYPE_SHARED)
     host_ranks = host.size
     host.Free()
-    machine = max_memory * GB if max_memory is not None else MEMORY_FRACTION * machine_memory()
+    if max_memory is not None:
+        machine = capacity = max_memory * GB
+    else:
+        machine = MEMORY_FRACTION * machine_memory()
+        capacity = MEMORY_FRACTION * machine_capacity()
     share = (machine / host_ranks, host_ranks)
     # the tightest machine decides (min of (bytes per rank, ranks)), the same on every rank
     rank_bytes, tightest_ranks = comm.allreduce(share, op=MPI.MIN)
-    return Budget(scene, rank_bytes, tightest_ranks, comm.size, max_memory is not None)
+    floor_rank_bytes = comm.allreduce(capacity / host_ranks, op=MPI.MIN)
+    return Budget(
+        scene, rank_bytes, tightest_ranks, comm.size, max_memory is not None, floor_rank_bytes
+    )
 
 
 def check_problem_size(comm, scene, max_memory: float | None = None) -> Budget:

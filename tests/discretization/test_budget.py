@@ -24,11 +24,14 @@ from petsc4py import PETSc
 
 from parefg.discretization.budget import (
     CLOUD_SLACK,
+    FLOOR_RANGE,
     GB,
+    MEMORY_FRACTION,
     Budget,
     check_problem_size,
     cloud_size,
     estimate_scene,
+    make_budget,
     memory_per_rank,
     unstructured_size,
     uses_direct_solver,
@@ -610,3 +613,30 @@ def test_transfinite_counts_beyond_the_cap_are_refused(tmp_path, extra, line, wh
     assert f"line {line}: {why}" in result.stderr
     assert len(result.stderr.splitlines()) == 1 and seconds < 30
     assert not (tmp_path / "out").exists()
+
+
+def test_size_floor_does_not_move_with_the_free_memory(monkeypatch):
+    """The floor budgets the machine's capacity, not its free memory: same mesh under any load.
+
+    Before, the floor came from MemAvailable, so a .geo file with a refinement field was
+    meshed with 3280 nodes in one run and 3774 in the next on the same machine.
+    """
+    import parefg.discretization.budget as budget_module
+
+    scene = load_scene("square", ["discretization.h=0.1"])
+    monkeypatch.setattr(budget_module, "machine_capacity", lambda: 4 * GB)
+    floors, limits = [], []
+    for free in (0.1 * GB, 1 * GB):
+        monkeypatch.setattr(budget_module, "machine_memory", lambda free=free: free)
+        budget = make_budget(COMM, scene)
+        limits.append(budget.rank_bytes)
+        floors.append(budget.size_floor(1.0, 4.0))
+    assert limits[1] > 5 * limits[0]  # the run's own limit follows the free memory
+    assert floors[0] == floors[1]
+    assert scene.discretization.h * FLOOR_RANGE < floors[0] < scene.discretization.h  # binding
+    # and the floor is the one of a budget holding that capacity
+    n_host = COMM.Split_type(MPI.COMM_TYPE_SHARED)
+    share = MEMORY_FRACTION * 4 * GB / n_host.size
+    n_host.Free()
+    fixed = Budget(scene, share, host_ranks=1, n_ranks=COMM.size, given=True)
+    assert floors[0] == fixed.size_floor(1.0, 4.0)
