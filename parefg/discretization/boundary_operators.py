@@ -15,7 +15,12 @@ import scipy.sparse as sp
 
 from parefg.boundary import BoundaryKind
 from parefg.discretization.assembly import Coupling
-from parefg.discretization.dirichlet import DIRICHLET_METHODS, DirichletPart, local_operators
+from parefg.discretization.dirichlet import (
+    DIRICHLET_METHODS,
+    DirichletPart,
+    local_operators,
+    traction_operator,
+)
 from parefg.discretization.mls import MLS, ShapeValues
 from parefg.discretization.point_set import PointSet
 from parefg.discretization.quadrature import Quadrature, segment_quadrature
@@ -87,13 +92,81 @@ class BoundaryOperators:
             self.n_contact = (
                 int(np.count_nonzero(on_contact)) * self.scene.discretization.quadrature
             )
-            shape = self._shape(quadrature.points, gradients=False)
+            nitsche_parts = self._nitsche_contact_parts()
+            shape = self._shape(quadrature.points, gradients=bool(nitsche_parts))
+            part_of_point = cloud.segment_part[quadrature.cell]
+            extra = {}
+            if nitsche_parts:
+                extra = self._nitsche_contact(quadrature, shape, part_of_point, nitsche_parts)
+                dirichlet_local = dirichlet_local - extra.pop("nitsche_matrix")
             with phase(self.timings, "assembly"):
-                part_of_point = cloud.segment_part[quadrature.cell]
-                contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows)
+                contact = self._point_set(
+                    quadrature, shape, part=part_of_point, rows=rows, **extra
+                )
                 coupling = Coupling.of(shape, n, quadrature.cell)
                 pattern = coupling.interleaved(np.zeros((len(coupling.indices), 2, 2)))
         return boundary, parts, contact, dirichlet_local, pattern
+
+    def _nitsche_contact_parts(self) -> list[int]:
+        """Part ids of the contact parts imposed by Nitsche's method."""
+        cloud, scene = self.cloud, self.scene
+        return [
+            cloud.part_names.index(name)
+            for name, bc in scene.boundaries.items()
+            if bc.kind == BoundaryKind.CONTACT and bc.method == "nitsche"
+        ]
+
+    def _nitsche_contact(self, quadrature, shape, part_of_point, nitsche_parts) -> dict:
+        """sigma_nu(u_h) at the Gamma_C points, gamma, and N = T_nu^T W gamma^-1 T_nu.
+
+        Chouly & Hild's symmetric Nitsche contact (parefg.mechanics.contact) is the
+        penalty law with alpha_C = gamma on u_nu - sigma_nu / gamma, plus -N in the
+        stiffness.  gamma is the part's safety times the coercivity bound of each segment
+        (the Dirichlet parts' bound, shared with them where a cell has both): then
+        a(v, v) - ||sigma_nu(v)||^2 / gamma >= (1 - 1 / (2 safety)) a(v, v).  Points of
+        penalty contact parts get zero traction rows and gamma = alpha_C.
+        """
+        scene, n = self.scene, self.n_nodes
+        lam, mu = scene.material.lam, scene.material.mu
+        with phase(self.timings, "assembly"):  # the trace-inverse estimate
+            segments = np.unique(quadrature.cell)
+            per_segment = nitsche_beta(
+                self.mls,
+                self.cloud,
+                self._nitsche_segments(),
+                segments,
+                scene.discretization.quadrature,
+                lam,
+                mu,
+                edge_values=(quadrature.points, shape),
+            )
+        safety = np.zeros(len(self.cloud.part_names))
+        for name, bc in scene.boundaries.items():
+            if bc.kind == BoundaryKind.CONTACT and bc.method == "nitsche":
+                safety[self.cloud.part_names.index(name)] = bc.safety
+        # points are grouped by segment, in the order of np.unique(cell)
+        segment_of_point = np.searchsorted(segments, quadrature.cell)
+        nitsche = np.isin(part_of_point, nitsche_parts)
+        gamma = np.where(
+            nitsche,
+            safety[part_of_point] * per_segment[segment_of_point],
+            scene.penalty.alpha_contact,
+        )
+        with phase(self.timings, "assembly"):
+            assert quadrature.normals is not None
+            traction = traction_operator(shape, quadrature.normals, n, lam, mu)
+            normals = quadrature.normals * nitsche[:, None]  # zero rows off Nitsche parts
+            rotate = sp.csr_matrix(
+                (
+                    normals.ravel(),
+                    (np.repeat(np.arange(len(normals)), 2), np.arange(2 * len(normals))),
+                ),
+                shape=(len(normals), 2 * len(normals)),
+            )
+            normal_traction = (rotate @ traction).tocsr()  # (n_c, 2 n) sigma_nu rows
+            scale = sp.diags(quadrature.weights / gamma)
+            matrix = (normal_traction.T @ scale @ normal_traction).tocsr()
+        return {"normal_traction": normal_traction, "gamma": gamma, "nitsche_matrix": matrix}
 
     def _dirichlet_part(self, method, bc, quadrature: Quadrature, shape: ShapeValues):
         """One Dirichlet part by ``method``, and its local contributions to D.
@@ -143,9 +216,11 @@ class BoundaryOperators:
         return part, local
 
     def _nitsche_segments(self) -> np.ndarray:
-        """Every segment (all ranks) of a Dirichlet part imposed by a consistent method."""
+        """Every segment (all ranks) of a part imposed by Nitsche's method (Dirichlet, contact)."""
         cloud, names = self.cloud, []
         for name, bc in self.scene.boundaries.items():
             if bc.kind == BoundaryKind.DIRICHLET and DIRICHLET_METHODS[bc.method].consistent:
+                names.append(cloud.part_names.index(name))
+            if bc.kind == BoundaryKind.CONTACT and bc.method == "nitsche":
                 names.append(cloud.part_names.index(name))
         return np.flatnonzero(np.isin(cloud.segment_part, names))

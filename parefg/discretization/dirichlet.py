@@ -113,6 +113,11 @@ DIRICHLET_METHODS = {
 DEFAULT_DIRICHLET_METHOD = next(iter(DIRICHLET_METHODS))
 #: beta = NITSCHE_SAFETY x the coercivity bound 2 C_e (segments per cell) by default
 NITSCHE_SAFETY = 2.0
+#: ``[boundary.NAME] method`` of a contact part; the first is the default.  "nitsche" is
+#: Chouly & Hild's symmetric Nitsche contact (parefg.mechanics.contact), gamma = safety x
+#: the same coercivity bound; "penalty" the paper's alpha_C (u_nu - s)^+.
+CONTACT_METHODS = ("penalty", "nitsche")
+DEFAULT_CONTACT_METHOD = CONTACT_METHODS[0]
 
 
 def local_operators(

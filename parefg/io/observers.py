@@ -46,9 +46,9 @@ def output_fields(sim, state) -> tuple[dict, dict]:
     contact_fields = {}
     if sim.law is not None and "contact" in wanted:
         law = sim.law
-        un = law.kinematics(state.u)[0]
+        un = law.kinematics(state.u)[0]  # Nitsche: u_nu - sigma_nu / gamma, its pressure's
         values = {
-            "gap": law.gap - un,
+            "gap": law.gap - law.normal_displacement(state.u),
             "normal_pressure": law.pressure(un),
             "tangential_traction": law.step_friction,
             "status": law.step_status,

@@ -70,7 +70,10 @@ class ContactLaw(ContactFrame):
     def __init__(self, comm, disc, scene, guard: DataGuard | None = None):
         super().__init__(comm, disc.contact)
         self.guard = DataGuard(comm, scene) if guard is None else guard
-        self.alpha_c, self.alpha_t = scene.penalty.alpha_contact, scene.penalty.alpha_friction
+        self.alpha_t = scene.penalty.alpha_friction
+        # Nitsche contact (Chouly & Hild, symmetric): the penalty law with alpha_C = gamma
+        # on the frame's u_nu - sigma_nu / gamma, i.e. p = [gamma (u_nu - s) - sigma_nu]^+
+        self.alpha_c = scene.penalty.alpha_contact if self.gamma is None else self.gamma
         # the discrete gradient needs a previous level: static load steps use the endpoint
         self.normal_force: type[NormalForce] = (
             CONTACT_FORCES[scene.time.contact_force] if scene.time.dynamic else EndpointForce
@@ -346,6 +349,17 @@ class ContactLaw(ContactFrame):
     def local_normal_energy(self, un) -> float:
         """This rank's share of :meth:`normal_energy`.  Not collective."""
         return float(np.dot(self.weights, self._normal_potential(un)))
+
+    def local_nitsche_energy(self, u: PETSc.Vec) -> float:
+        """This rank's share of -||sigma_nu(u_h)||^2 / (2 gamma) on Gamma_C (0 for the penalty).
+
+        The stiffness term of Nitsche contact (its -N in D): with it, kinetic + elastic +
+        contact energies are what the discrete-gradient step conserves.  Collective.
+        """
+        if self.traction_op is None:
+            return 0.0
+        traction = self.normal_traction(u)
+        return float(-0.5 * np.dot(self.weights, traction**2 / self.gamma))
 
     def local_friction_energy(self, ut) -> float:
         """This rank's share of alpha_T/2 |u_tau - xi|^2 after the slip update (the friction

@@ -43,13 +43,21 @@ class ContactFrame:
         # kron(S, I_2) of the scalar value operator: rows 2q, 2q + 1 = (u_x, u_y)(x_q)
         values = sp.kron(_scipy_from_petsc(points.values), sp.identity(2), format="csr")
         local = (_rotated(self.normals, self.tangents) @ values).tocsr()
+        n_local, n_dofs = 2 * points.values.getLocalSize()[1], 2 * points.values.getSize()[1]
+        # Nitsche contact: the law's "u_nu" is u_nu - sigma_nu(u_h) / gamma (ContactLaw)
+        self.gamma = points.gamma  # (n_c,) or None (penalty contact)
+        self.traction_op = None  # PETSc sigma_nu(u_h) at the points (Nitsche only)
+        if points.normal_traction is not None:
+            normal_traction = points.normal_traction
+            shifted = local[0::2] - sp.diags(1.0 / self.gamma) @ normal_traction
+            local = _interleave_rows(shifted.tocsr(), local[1::2])
+            self.traction_op = petsc_matrix(comm, normal_traction, n_local, n_dofs)
         self.normal_op = local[0::2]  # (n_c, n_dofs) scipy, for the Jacobian
         self.tangent_op = local[1::2]
-        self.operator = petsc_matrix(
-            comm, local, 2 * points.values.getLocalSize()[1], 2 * points.values.getSize()[1]
-        )
+        self.operator = petsc_matrix(comm, local, n_local, n_dofs)
         # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
         self._point_vec = self.operator.createVecLeft()
+        self._traction_vec: PETSc.Vec | None = None
         # the last KEPT_KINEMATICS results: (vector, its handle and state, (u_nu, u_tau))
         self._kept: list[tuple[PETSc.Vec, tuple[int, int], tuple[np.ndarray, np.ndarray]]] = []
 
@@ -83,6 +91,22 @@ class ContactFrame:
         self._kept = [(u, key, result), *self._kept[: KEPT_KINEMATICS - 1]]
         return result
 
+    def normal_traction(self, u: PETSc.Vec) -> np.ndarray:
+        """sigma_nu(u_h) at the points (zeros without Nitsche contact).  Collective."""
+        if self.traction_op is None:
+            return np.zeros(len(self.weights))
+        if self._traction_vec is None:
+            self._traction_vec = self.traction_op.createVecLeft()
+        self.traction_op.mult(u, self._traction_vec)
+        return self._traction_vec.getArray(readonly=True).copy()
+
+    def normal_displacement(self, u: PETSc.Vec) -> np.ndarray:
+        """nu . u_h at the points: the physical one also under Nitsche contact.  Collective."""
+        un = self.kinematics(u)[0]
+        if self.traction_op is None:
+            return un
+        return un + self.normal_traction(u) / self.gamma
+
     def point_vector(self, normal: np.ndarray) -> PETSc.Vec:
         """The work vector at the points, holding (normal_q, 0) (overwritten by later calls)."""
         out = self._point_vec
@@ -112,6 +136,14 @@ def _rotated(normals: np.ndarray, tangents: np.ndarray) -> sp.csr_matrix:
         ),
         shape=(2 * n_points, 2 * n_points),
     )
+
+
+def _interleave_rows(even: sp.csr_matrix, odd: sp.csr_matrix) -> sp.csr_matrix:
+    """Rows 2q = even[q], 2q + 1 = odd[q]."""
+    stacked = sp.vstack([even, odd], format="csr")
+    n_points = even.shape[0]
+    order = np.column_stack([np.arange(n_points), n_points + np.arange(n_points)]).ravel()
+    return stacked[order]
 
 
 def _scipy_from_petsc(matrix: PETSc.Mat) -> sp.csr_matrix:

@@ -9,6 +9,8 @@ import copy
 
 from parefg.boundary import BoundaryKind
 from parefg.discretization.dirichlet import (
+    CONTACT_METHODS,
+    DEFAULT_CONTACT_METHOD,
     DEFAULT_DIRICHLET_METHOD,
     DIRICHLET_METHODS,
     NITSCHE_SAFETY,
@@ -51,6 +53,7 @@ def read_boundaries(where: str, raw, part_names: list[str], has_exact: bool) -> 
         if kind == BoundaryKind.DIRICHLET:
             _read_dirichlet_method(table)
         if kind == BoundaryKind.CONTACT:
+            _read_contact_method(table)
             _read_friction_law(table, has_exact)
             _read_friction_coefficient(table, given)
         boundaries[name] = table.finish()
@@ -74,8 +77,31 @@ def _read_dirichlet_method(table: Table) -> None:
                 "penalty.alpha_dirichlet)",
             )
         return
+    _read_safety(table)
+
+
+def _read_safety(table: Table) -> None:
     above_one = (lambda v: v > 1, "must be > 1 (the coercivity bound of Nitsche's method)")
     table.take("safety", as_number, NITSCHE_SAFETY, above_one)
+
+
+def _read_contact_method(table: Table) -> None:
+    """method: a name of CONTACT_METHODS (default "penalty"); safety: Nitsche's only.
+
+    Nitsche's gamma is safety times the coercivity bound of each segment, as for a
+    Dirichlet part; the penalty's alpha_C is [penalty] alpha_contact.
+    """
+    method = table.take("method", one_of(*CONTACT_METHODS), DEFAULT_CONTACT_METHOD)
+    if method != "nitsche":
+        if "safety" in table.raw:
+            raise table.fail(
+                "safety",
+                table.raw["safety"],
+                'only used with method = "nitsche" (the penalty\'s parameter is '
+                "penalty.alpha_contact)",
+            )
+        return
+    _read_safety(table)
 
 
 def _read_friction_law(table: Table, has_exact: bool) -> None:

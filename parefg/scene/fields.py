@@ -102,6 +102,8 @@ def _contact(where: str, name: str, table: dict, manufactured, checks) -> Bounda
         # derived friction is homogeneous in (nx, ny): zero for all normals iff for unit ones
         friction_is_zero=is_identically_zero(friction[0], [SYMBOLS[s] for s in WITH_NORMAL]),
         friction_law=table["friction_law"],
+        method=table["method"],
+        safety=table.get("safety", 0.0),
     )
 
 
@@ -116,6 +118,8 @@ def _coulomb_boundary(name: str, table: dict, gap: CompiledField) -> BoundaryCon
         friction_is_zero=coefficient == 0,  # the scene's number, not a computed float
         friction_law=table["friction_law"],
         friction_coefficient=coefficient,
+        method=table["method"],
+        safety=table.get("safety", 0.0),
     )
 
 

@@ -250,7 +250,8 @@ class BoundaryCondition:
     friction_is_zero: bool = True
     friction_law: str = DEFAULT_FRICTION_LAW
     friction_coefficient: float = 0.0
-    method: str = DEFAULT_DIRICHLET_METHOD  # a Dirichlet part's method (DIRICHLET_METHODS)
+    # a Dirichlet part's method (DIRICHLET_METHODS) or a contact part's (CONTACT_METHODS)
+    method: str = DEFAULT_DIRICHLET_METHOD
     safety: float = 0.0  # Nitsche's beta over the coercivity bound
 
 

@@ -57,7 +57,7 @@ class EnergyLedger:
             un, ut = self.law.kinematics(new.u)
             local[0] = self.law.end_step(un, ut)
             local[1] = np.count_nonzero(un > self.law.gap)
-            local[2] = self.law.local_normal_energy(un)
+            local[2] = self.law.local_normal_energy(un) + self.law.local_nitsche_energy(new.u)
             local[3] = self.law.local_friction_energy(ut)
         local[4:] = self._dirichlet_shares(new.u, t)
         total = np.empty_like(local)

@@ -148,6 +148,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         contact_energy = 0.0
         if self.law is not None:
             contact_energy = self.law.normal_energy(self.law.kinematics(state.u)[0])
+            contact_energy += self.comm.allreduce(self.law.local_nitsche_energy(state.u))
         self._check_state(state, 0)
         row = {
             "time": 0.0,
