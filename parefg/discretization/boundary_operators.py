@@ -100,9 +100,7 @@ class BoundaryOperators:
                 extra = self._nitsche_contact(quadrature, shape, part_of_point, nitsche_parts)
                 dirichlet_local = dirichlet_local - extra.pop("nitsche_matrix")
             with phase(self.timings, "assembly"):
-                contact = self._point_set(
-                    quadrature, shape, part=part_of_point, rows=rows, **extra
-                )
+                contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows, **extra)
                 coupling = Coupling.of(shape, n, quadrature.cell)
                 pattern = coupling.interleaved(np.zeros((len(coupling.indices), 2, 2)))
         return boundary, parts, contact, dirichlet_local, pattern

@@ -26,6 +26,8 @@ CASES = {
     "z-dynamic": ("z", ["time.dt=0.1"]),
     # The paper's penalty on the clamped top instead of the default Nitsche.
     "square-penalty": ("square", ["time.dt=0.1", "boundary.top.method=penalty"]),
+    # Nitsche contact (gamma from the trace-inverse estimate) instead of the penalty.
+    "square-nitsche-contact": ("square", ["time.dt=0.1", "boundary.bottom.method=nitsche"]),
 }
 
 

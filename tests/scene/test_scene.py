@@ -95,7 +95,12 @@ def test_effective_params_contain_defaults(square):
     # 20 steps: the default series (about 50 frames) outputs every step
     assert params["output"] == {"every": 1, "fields": ["u", "v", "a", "von_mises", "contact"]}
     # friction derived from [exact]: the paper's given friction by default
-    assert params["boundary"]["bottom"] == {"type": "contact", "gap": 0, "friction_law": "given"}
+    assert params["boundary"]["bottom"] == {
+        "type": "contact",
+        "gap": 0,
+        "method": "penalty",
+        "friction_law": "given",
+    }
     assert params["boundary"]["top"] == {"type": "dirichlet", "method": "nitsche", "safety": 2.0}
     assert json.loads(json.dumps(params)) == params
 
@@ -178,6 +183,7 @@ def test_overrides_change_values():
     assert bottom.friction_is_zero
     np.testing.assert_allclose(bottom.gap(np.array([0.5, 1.0]), np.zeros(2)), [0.05, 0.1])
     expected = {"type": "contact", "gap": "0.1*x", "friction": 0, "friction_law": "tresca"}
+    expected["method"] = "penalty"  # the default, written back
     assert scene.params["boundary"]["bottom"] == expected
     # true is a bare flag (PETSc reads "-snes_monitor true" as a viewer named "true")
     assert scene.solver.options == {"ksp_type": "cg", "snes_monitor": "", "ksp_rtol": "1e-08"}
@@ -544,3 +550,18 @@ def test_huge_scene_file_is_refused_before_reading(tmp_path):
     with path.open("wb") as stream:
         stream.truncate(2**24 + 1)  # sparse: no disk used, and never read
     assert "huge.toml has 16777217 bytes (at most 16777216)" in load_error(str(path))
+
+
+def test_contact_method_and_its_safety_are_validated():
+    """method = "nitsche" | "penalty" on a contact part; safety only with Nitsche, > 1."""
+    scene = load_scene("square", ["boundary.bottom.method=nitsche"])
+    assert scene.boundaries["bottom"].method == "nitsche"
+    assert scene.boundaries["bottom"].safety == 2.0
+    assert load_scene("square").boundaries["bottom"].method == "penalty"  # the paper's
+    for overrides, words in [
+        (["boundary.bottom.method=lagrange"], "method"),
+        (["boundary.bottom.safety=3"], "safety"),  # with the penalty
+        (["boundary.bottom.method=nitsche", "boundary.bottom.safety=0.5"], "safety"),
+    ]:
+        with pytest.raises(InputError, match=words):
+            load_scene("square", overrides)
