@@ -164,6 +164,8 @@ class BoundaryOperators:
             normal_traction = (rotate @ traction).tocsr()  # (n_c, 2 n) sigma_nu rows
             scale = sp.diags(quadrature.weights / gamma)
             matrix = (normal_traction.T @ scale @ normal_traction).tocsr()
+            # PETSc, as the point set's value operator: no scipy twin is kept
+            normal_traction = petsc_matrix(self.comm, normal_traction, self.n_dofs_local, 2 * n)
         return {"normal_traction": normal_traction, "gamma": gamma, "nitsche_matrix": matrix}
 
     def _dirichlet_part(self, method, bc, quadrature: Quadrature, shape: ShapeValues):

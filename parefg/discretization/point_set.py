@@ -8,7 +8,6 @@ integrates point forces back onto the nodes.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from petsc4py import PETSc
@@ -35,9 +34,9 @@ class PointSet:
     part: np.ndarray | None = None  # (n_points,) boundary part index of each point
     rows: np.ndarray | None = None  # (n_points,) global, rank-independent row of each point
     gradients: PointGradients | None = field(default=None, repr=False)
-    # Gamma_C with Nitsche contact: this rank's rows of sigma_nu(u_h) at the points
-    # (scipy (n_points, 2 n_nodes), zero rows on penalty parts) and gamma (n_points,)
-    normal_traction: Any = field(default=None, repr=False)
+    # Gamma_C with Nitsche contact: sigma_nu(u_h) at the points (PETSc, n_points x
+    # 2 n_nodes, zero rows on penalty parts) and gamma (n_points,)
+    normal_traction: PETSc.Mat | None = field(default=None, repr=False)
     gamma: np.ndarray | None = None
     # work vectors at the points and the nodes, created on first use and reused (no PETSc
     # object per call)

@@ -48,10 +48,10 @@ class ContactFrame:
         self.gamma = points.gamma  # (n_c,) or None (penalty contact)
         self.traction_op = None  # PETSc sigma_nu(u_h) at the points (Nitsche only)
         if points.normal_traction is not None:
-            normal_traction = points.normal_traction
+            self.traction_op = points.normal_traction
+            normal_traction = _scipy_from_petsc(self.traction_op)
             shifted = local[0::2] - sp.diags(1.0 / self.gamma) @ normal_traction
             local = _interleave_rows(shifted.tocsr(), local[1::2])
-            self.traction_op = petsc_matrix(comm, normal_traction, n_local, n_dofs)
         self.normal_op = local[0::2]  # (n_c, n_dofs) scipy, for the Jacobian
         self.tangent_op = local[1::2]
         self.operator = petsc_matrix(comm, local, n_local, n_dofs)

@@ -86,7 +86,7 @@ def _read_safety(table: Table) -> None:
 
 
 def _read_contact_method(table: Table) -> None:
-    """method: a name of CONTACT_METHODS (default "penalty"); safety: Nitsche's only.
+    """method: a name of CONTACT_METHODS (default "nitsche"); safety: Nitsche's only.
 
     Nitsche's gamma is safety times the coercivity bound of each segment, as for a
     Dirichlet part; the penalty's alpha_C is [penalty] alpha_contact.

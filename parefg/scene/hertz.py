@@ -13,7 +13,7 @@ holds for a << R; its error is O(a / R).
 The scene (:func:`hertz_scene`): ``meshes/half_disk.geo`` (R = 1, centre (0, 1): the
 curved bottom touches y = 0 at the origin, nodes graded to h/10 within 0.15 of it), a
 static load step pushing the flat top y = 1 down by ``delta`` (Nitsche, the top
-clamped: u = (0, -delta)), frictionless penalty contact on the arc within 30 degrees of
+clamped: u = (0, -delta)), frictionless contact (penalty or Nitsche) on the arc within 30 degrees of
 the bottom.  The load P is not prescribed but measured: the vertical resultant of the
 contact pressure, checked against the stress resultant through the body
 (:func:`stress_resultant`).  The Hertz values are those of the measured P.
@@ -64,19 +64,24 @@ CHORD_GAP = "y / (1 - y)"
 def hertz_scene(
     h: float,
     delta: float,
-    alpha_factor: float | None = 10.0,
+    contact: float | str = 10.0,
     degree: int = 2,
     nu: float = NU,
     gap: str = ARC_GAP,
 ) -> str:
     """The TOML text of the Hertz scene at spacing h and top displacement delta.
 
-    ``alpha_factor`` None keeps parefg's default penalty (1e4 E / h).
+    ``contact``: a number c is penalty contact with alpha_C = c E / h_c; ``"penalty"`` the
+    penalty at parefg's default alpha (1e4 E / h); ``"nitsche"`` Nitsche contact (its
+    gamma from the trace-inverse estimate).
     """
-    penalty = ""
-    if alpha_factor is not None:
-        alpha = alpha_factor * E / (CONTACT_REFINEMENT * h)
-        penalty = f"[penalty]\nalpha_contact = {alpha!r}\n"
+    if contact == "nitsche":
+        method, penalty = "nitsche", ""
+    elif contact == "penalty":
+        method, penalty = "penalty", ""
+    else:
+        alpha = float(contact) * E / (CONTACT_REFINEMENT * h)
+        method, penalty = "penalty", f"[penalty]\nalpha_contact = {alpha!r}\n"
     return f"""
 name = "hertz"
 [domain]
@@ -95,6 +100,7 @@ T = 1.0
 dt = 1.0
 {penalty}[boundary.contact]
 type = "contact"
+method = "{method}"
 gap = "{gap}"
 [boundary.top]
 type = "dirichlet"

@@ -67,6 +67,7 @@ gamma = 0.7
 alpha_contact = 1e4
 [boundary.bottom]
 type = "contact"
+method = "penalty"
 friction_law = "coulomb"
 friction_coefficient = {SLIDE_MU}
 [initial]

@@ -68,6 +68,7 @@ def bar_scene(alpha: float, dt: float, beta: float, method: str):
             f"time.dt={dt}",
             f"time.beta={beta}",
             f"time.contact_force={method}",
+            "boundary.bottom.method=penalty",  # the alpha sweep: contact defaults to Nitsche
             f"penalty.alpha_contact={alpha / H}",
         ],
     )

@@ -167,7 +167,8 @@ def alpha_rows() -> list[Row]:
     fixed = [f"discretization.h={h}", "discretization.degree=1", "time.T=0.3"]
     return [
         Row("alpha", f"{a:.0e} E/h", "square",
-            [*fixed, f"penalty.alpha_contact={a / h!r}", f"penalty.alpha_friction={a / h!r}"])
+            [*fixed, "boundary.bottom.method=penalty", f"penalty.alpha_contact={a / h!r}",
+             f"penalty.alpha_friction={a / h!r}"])
         for a in (1e0, 1e2, 1e4, 1e6, 1e8, 1e10, 1e12, 1e14)
     ]  # fmt: skip
 

@@ -22,8 +22,8 @@ Usage::
 
     .venv/bin/python scripts/verify/hertz_study.py --h 0.2,0.1,0.05 --alpha 10 \\
         --delta 0.015 --out results/hertz.csv
-    .venv/bin/python scripts/verify/hertz_study.py --h 0.1 --alpha 1,10,100,default
-    .venv/bin/python scripts/verify/hertz_study.py --h 0.1 --alpha default --chord-gap
+    .venv/bin/python scripts/verify/hertz_study.py --h 0.1 --alpha 1,10,100,penalty,nitsche
+    .venv/bin/python scripts/verify/hertz_study.py --h 0.1 --alpha penalty --chord-gap
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from parefg.scene.loader import load_scene
 def solve(
     comm,
     h: float,
-    alpha_factor: float | None,
+    contact: float | str,
     delta: float,
     degree: int,
     nu: float,
@@ -59,7 +59,7 @@ def solve(
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "hertz.toml"
         if comm.rank == 0:
-            path.write_text(hertz_scene(h, delta, alpha_factor, degree, nu, gap))
+            path.write_text(hertz_scene(h, delta, contact, degree, nu, gap))
         comm.Barrier()
         start = time.perf_counter()
         scene = load_scene(str(path), [])
@@ -75,7 +75,7 @@ def solve(
         comm.Barrier()  # every rank has read the scene before rank 0 removes it
     result.update(
         h=h,
-        alpha_factor="default" if alpha_factor is None else alpha_factor,
+        alpha_factor=contact,
         alpha_contact=sim.scene.penalty.alpha_contact,
         delta=delta,
         degree=degree,
@@ -124,7 +124,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--h", default="0.2,0.1,0.05", help="scene spacings (contact: h/10)")
     parser.add_argument(
-        "--alpha", default="10", help="alpha_contact x E / (h/10), or 'default' (1e4 E/h)"
+        "--alpha",
+        default="10",
+        help="penalty alpha_contact x E / (h/10), 'penalty' (its default 1e4 E/h) or 'nitsche'",
     )
     parser.add_argument("--delta", default="0.015", help="top displacements")
     parser.add_argument("--degree", default="2")
@@ -149,7 +151,7 @@ def main() -> None:
         [float(v) for v in args.nu.split(",")],
         [float(v) for v in args.degree.split(",")],
         [float(v) for v in args.delta.split(",")],
-        [None if v == "default" else float(v) for v in args.alpha.split(",")],
+        [v if v in ("penalty", "nitsche") else float(v) for v in args.alpha.split(",")],
         [float(v) for v in args.h.split(",")],
     )
     rows = [

@@ -44,7 +44,8 @@ EPS = (
 def energy_ratio(comm, eps: float) -> tuple[np.ndarray, float]:
     """E / E_0 per step of the impact run with v_0 scaled by (1 + eps, 1 - eps); and dt."""
     vx, vy = 0.5 * (1 + eps), -1.0 * (1 - eps)
-    overrides = ["time.scheme=generalized-alpha", "penalty.alpha_contact=1e7"]
+    overrides = ["time.scheme=generalized-alpha", "boundary.bottom.method=penalty"]
+    overrides += ["penalty.alpha_contact=1e7"]
     scene = load_scene("impact", [*overrides, f"initial.v=[{vx!r}, {vy!r}]"])
     sim = Simulation(comm, scene, build_discretization(comm, scene))
     state = sim.start()

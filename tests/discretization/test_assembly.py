@@ -164,25 +164,43 @@ def reference_nitsche(shape, points, beta, n_nodes, lam, mu):
     return reference_interleave(reference_gram(phi, weights * beta, phi)) - cross - cross.T
 
 
+def reference_nitsche_contact(shape, points, n_nodes, lam, mu):
+    """N = int T^T T / gamma of Nitsche contact: T[q, 2J+b] = sigma_nu(phi_J e_b)(x_q),
+    which is lam d_b phi_J + 2 mu nu_b d_nu phi_J."""
+    grads = [reference_scalar(shape, n_nodes, d) for d in range(2)]
+    normals = points.normals
+    normal_derivative = sp.diags(normals[:, 0]) @ grads[0] + sp.diags(normals[:, 1]) @ grads[1]
+    traction = sp.csr_matrix((len(normals), 2 * n_nodes))
+    for b in range(2):
+        block = lam * grads[b] + 2 * mu * sp.diags(normals[:, b]) @ normal_derivative
+        unit = sp.csr_matrix(([1.0], ([0], [b])), shape=(1, 2))
+        traction = traction + sp.kron(block, unit, format="csr")
+    return reference_gram(traction, points.weights / points.gamma, traction)
+
+
 def test_dirichlet_and_contact_pattern_equal_reference(case):
-    """D of the default (Nitsche) and of the penalty (alpha_D G_D) equal the reference."""
+    """D of the defaults (Nitsche on the Dirichlet and the contact parts) and of the penalty
+    (alpha_D G_D) equal the reference."""
     scene, disc, mls = case
-    n = disc.n_nodes
+    n, lam, mu = disc.n_nodes, scene.material.lam, scene.material.mu
     dirichlet = sp.csr_matrix((2 * n, 2 * n))
     for name, bc in scene.boundaries.items():
         if bc.kind == "dirichlet":
             assert bc.method == "nitsche"
             points, beta = disc.boundary[name], disc.dirichlet_parts[name].beta
             shape = mls.evaluate(points.points, gradients=True)
-            dirichlet += reference_nitsche(
-                shape, points, beta, n, scene.material.lam, scene.material.mu
-            )
+            dirichlet += reference_nitsche(shape, points, beta, n, lam, mu)
+        if bc.kind == "contact":
+            assert bc.method == "nitsche"
+    shape = mls.evaluate(disc.contact.points, gradients=True)
+    dirichlet -= reference_nitsche_contact(shape, disc.contact, n, lam, mu)
     assert_equal_matrices(disc.owned["dirichlet"].toarray(), owned_dense(disc, dirichlet))
     assert_equal_matrices(petsc_local_rows(disc.dirichlet), owned_dense(disc, dirichlet))
 
     penalty_scene = load_scene(
         "square", [f"discretization.degree={scene.discretization.degree}",
-                   "discretization.h=0.0625", "boundary.top.method=penalty"]
+                   "discretization.h=0.0625", "boundary.top.method=penalty",
+                   "boundary.bottom.method=penalty"]
     )  # fmt: skip
     penalty = build_discretization(MPI.COMM_WORLD, penalty_scene)
     points = penalty.boundary["top"]

@@ -130,7 +130,8 @@ def test_newton_converges_for_alpha_from_1e2_to_1e12(scene_name):
     worst = []
     for factor in ALPHA_FACTORS:
         alpha = factor / h  # E = 1 in all three scenes
-        sets = [f"penalty.alpha_contact={alpha}", f"penalty.alpha_friction={alpha}"]
+        sets = ["boundary.bottom.method=penalty", f"penalty.alpha_contact={alpha}"]
+        sets += [f"penalty.alpha_friction={alpha}"]
         sim = simulation(scene_name, SHORT_RUNS[scene_name] + sets)
         advance(sim, sim.start(), 1, sim.scene.time.n_steps)
         assert len(sim.history) == sim.scene.time.n_steps + 1

@@ -98,7 +98,8 @@ def test_effective_params_contain_defaults(square):
     assert params["boundary"]["bottom"] == {
         "type": "contact",
         "gap": 0,
-        "method": "penalty",
+        "method": "nitsche",
+        "safety": 2.0,
         "friction_law": "given",
     }
     assert params["boundary"]["top"] == {"type": "dirichlet", "method": "nitsche", "safety": 2.0}
@@ -183,7 +184,7 @@ def test_overrides_change_values():
     assert bottom.friction_is_zero
     np.testing.assert_allclose(bottom.gap(np.array([0.5, 1.0]), np.zeros(2)), [0.05, 0.1])
     expected = {"type": "contact", "gap": "0.1*x", "friction": 0, "friction_law": "tresca"}
-    expected["method"] = "penalty"  # the default, written back
+    expected.update(method="nitsche", safety=2.0)  # the defaults, written back
     assert scene.params["boundary"]["bottom"] == expected
     # true is a bare flag (PETSc reads "-snes_monitor true" as a viewer named "true")
     assert scene.solver.options == {"ksp_type": "cg", "snes_monitor": "", "ksp_rtol": "1e-08"}
@@ -554,13 +555,15 @@ def test_huge_scene_file_is_refused_before_reading(tmp_path):
 
 def test_contact_method_and_its_safety_are_validated():
     """method = "nitsche" | "penalty" on a contact part; safety only with Nitsche, > 1."""
-    scene = load_scene("square", ["boundary.bottom.method=nitsche"])
-    assert scene.boundaries["bottom"].method == "nitsche"
+    scene = load_scene("square")
+    assert scene.boundaries["bottom"].method == "nitsche"  # the default
     assert scene.boundaries["bottom"].safety == 2.0
-    assert load_scene("square").boundaries["bottom"].method == "penalty"  # the paper's
+    assert load_scene("square", ["boundary.bottom.safety=3"]).boundaries["bottom"].safety == 3.0
+    paper = load_scene("square", ["boundary.bottom.method=penalty"])
+    assert paper.boundaries["bottom"].method == "penalty"
     for overrides, words in [
         (["boundary.bottom.method=lagrange"], "method"),
-        (["boundary.bottom.safety=3"], "safety"),  # with the penalty
+        (["boundary.bottom.method=penalty", "boundary.bottom.safety=3"], "safety"),
         (["boundary.bottom.method=nitsche", "boundary.bottom.safety=0.5"], "safety"),
     ]:
         with pytest.raises(InputError, match=words):

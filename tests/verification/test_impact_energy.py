@@ -25,6 +25,8 @@ from parefg.scene.loader import load_scene
 from parefg.timestepping.loop import time_loop
 from parefg.timestepping.simulation import Simulation
 
+#: the tests of a stiff contact penalty pin it: contact defaults to Nitsche
+PENALTY_CONTACT = "boundary.bottom.method=penalty"
 COLUMNS = ("kinetic_energy", "elastic_energy", "penalty_energy", "dissipated_energy")
 # the bar of scripts/bench/bench_impact.py: L = 1, c = 1, v0 = 0.1, gap 0.05
 BAR = [
@@ -80,7 +82,7 @@ def test_stiff_penalty_impact_conserves_energy_at_beta_quarter(alpha):
 
     The endpoint force gained 5.7x (alpha = 1e5) through the same impact.
     """
-    overrides = ["time.beta=0.25", f"penalty.alpha_contact={alpha}"]
+    overrides = ["time.beta=0.25", PENALTY_CONTACT, f"penalty.alpha_contact={alpha}"]
     overrides += ["boundary.bottom.friction=0", "time.T=0.4"]
     sim, _, _ = run("impact", overrides)
     assert max(r["active_contact_points"] for r in sim.history) > 0  # it hit
@@ -94,7 +96,8 @@ def test_energy_never_grows_at_beta_half_with_friction():
     Bound: E_n <= E_0 + dt^2/8 a_0^T M a_0 = E_0 (a_0 = 0); friction only removes energy.
     The bound leaves the friction gate's lag (parefg.mechanics.friction) 1e-3 of E_0.
     """
-    sim, _, _ = run("impact", ["time.beta=0.5", "penalty.alpha_contact=1e7", "time.T=0.4"])
+    overrides = ["time.beta=0.5", PENALTY_CONTACT, "penalty.alpha_contact=1e7", "time.T=0.4"]
+    sim, _, _ = run("impact", overrides)
     energy = balance(sim.history)
     dissipated = np.array([r["dissipated_energy"] for r in sim.history])
     assert energy.max() <= energy[0] * (1 + 1e-3)
@@ -117,7 +120,8 @@ def test_generalized_alpha_impact_stays_in_the_energy_band():
     The band for the whole run is mean - 5 std .. a dissipation of at least 1 %; the max,
     1.0091 in every run, is reached before the rattling (scripts/verify/impact_energy_spread.py).
     """
-    sim, _, _ = run("impact", ["time.scheme=generalized-alpha", "penalty.alpha_contact=1e7"])
+    overrides = ["time.scheme=generalized-alpha", PENALTY_CONTACT, "penalty.alpha_contact=1e7"]
+    sim, _, _ = run("impact", overrides)
     energy = balance(sim.history) / balance(sim.history)[0]
     first_rebound = energy[: round(0.2 / sim.scene.time.dt) + 1]
     assert 0.98 <= first_rebound.min(), first_rebound.min()
@@ -152,7 +156,8 @@ def test_restart_within_an_impact_at_beta_half_matches(tmp_path):
     C_n is not the pressure at u_n after a crossing step, so it must come from the file.
     """
     comm = MPI.COMM_WORLD
-    overrides = ["time.beta=0.5", "penalty.alpha_contact=1e5", "time.T=0.2", "time.dt=0.005"]
+    overrides = ["time.beta=0.5", PENALTY_CONTACT, "penalty.alpha_contact=1e5", "time.T=0.2"]
+    overrides += ["time.dt=0.005"]
     full, _, reference = run("impact", overrides)
     scene = load_scene("impact", overrides)
     disc = build_discretization(comm, scene)
@@ -184,7 +189,7 @@ def test_one_and_two_ranks_agree_through_touch_down_and_lift_off(tmp_path):
     penalty amplifies round-off by ~10x per 10 steps, with the endpoint force too.)
     """
     args = ["run", "impact", "--quiet", "--set", "time.beta=0.25", "--set", "time.T=0.15"]
-    args += ["--set", "penalty.alpha_contact=1e7"]
+    args += ["--set", PENALTY_CONTACT, "--set", "penalty.alpha_contact=1e7"]
     histories = []
     for ranks in (1, 2):
         out = tmp_path / f"ranks{ranks}"

@@ -47,7 +47,8 @@ def test_alpha_1e14_converges(tmp_path):
     limit the error).  The bound is on non-convergence, not on speed: SNES stops at 200.
     """
     alpha = 1e14 / 0.125
-    overrides = [*COARSE, "time.T=0.1", f"penalty.alpha_contact={alpha!r}",
+    overrides = [*COARSE, "time.T=0.1", "boundary.bottom.method=penalty",
+                 f"penalty.alpha_contact={alpha!r}",
                  f"penalty.alpha_friction={alpha!r}"]  # fmt: skip
     done = run_parefg(["run", "square", *sets(overrides), "--out", str(tmp_path / "r"), "--quiet"])
     assert done.returncode == 0, done.stderr
