@@ -55,6 +55,7 @@ class Discretization:
     n_contact: int = 0  # Gamma_C points on all ranks (contact.rows range over 0..n_contact-1)
     timings: dict[str, float] = field(default_factory=dict)
     condition_range: tuple[float, float] = (1.0, 1.0)  # min, max MLS moment condition number
+    symmetric: bool = True  # K's symmetry: False with VCI (Petrov-Galerkin test gradients)
 
     @property
     def n_dofs(self) -> int:
@@ -159,6 +160,7 @@ class _Builder(BoundaryOperators):
             contact=contact,
             n_contact=self.n_contact,
             timings=self.timings,
+            symmetric=self.scene.discretization.integration != "vci",
             condition_range=(
                 comm.allreduce(conditions.min(), op=MPI.MIN),
                 comm.allreduce(conditions.max(), op=MPI.MAX),

@@ -56,8 +56,15 @@ class CoulombStepSolver(ContactStepSolver):
     :attr:`outer_residuals` the Coulomb residual after each of them.
     """
 
-    def __init__(self, comm, a_const: PETSc.Mat, law, method: str = DEFAULT_SOLVER_METHOD):
-        super().__init__(comm, a_const, law, method)
+    def __init__(
+        self,
+        comm,
+        a_const: PETSc.Mat,
+        law,
+        method: str = DEFAULT_SOLVER_METHOD,
+        symmetric: bool = True,
+    ):
+        super().__init__(comm, a_const, law, method, symmetric)
         self.max_outer_option = f"-{self.snes.getOptionsPrefix() or ''}coulomb_max_it"
         self.max_outer = self._read_max_outer()
         self.outer_iterations = 0

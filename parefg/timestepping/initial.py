@@ -134,14 +134,15 @@ class InitialState:
         if self.law is not None:
             matrix = with_pattern(matrix, self.disc.contact_pattern)
         operator = petsc_matrix(self.comm, matrix, matrix.shape[0], self.disc.n_dofs, block_size=2)
-        operator.setOption(PETSc.Mat.Option.SPD, True)
+        symmetric = self.disc.symmetric
+        operator.setOption(PETSc.Mat.Option.SPD, symmetric)
         operator.setNearNullSpace(self._rigid_body_modes(operator))
         solver: LinearStepSolver | ContactStepSolver
         method = self.scene.solver.method
         if self.law is None:
-            solver = LinearStepSolver(self.comm, operator, method)
-        else:
-            solver = ContactStepSolver(self.comm, operator, self.law, method)  # bound still 0
+            solver = LinearStepSolver(self.comm, operator, method, symmetric)
+        else:  # the bound is still 0
+            solver = ContactStepSolver(self.comm, operator, self.law, method, symmetric)
         try:
             if self.law is None:
                 solver.solve(rhs, u, 0.0)

@@ -60,10 +60,11 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             self.loads = ExternalLoads(comm, disc, scene, self.guard)
             self.a_const = self._a_const()
             self.solver: LinearStepSolver | ContactStepSolver
+            method, symmetric = scene.solver.method, disc.symmetric
             if self.law is None:
-                self.solver = LinearStepSolver(comm, self.a_const, scene.solver.method)
+                self.solver = LinearStepSolver(comm, self.a_const, method, symmetric)
             else:
-                self.solver = _contact_solver(comm, self.a_const, self.law, scene.solver.method)
+                self.solver = _contact_solver(comm, self.a_const, self.law, method, symmetric)
             self.rigid_modes = self._rigid_mode_check()
         self.history: list[dict[str, float]] = []
         self._energy_budget = [0.0, 0.0]  # initial stored energy, largest |external work|
@@ -92,7 +93,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         matrix = with_pattern(matrix.tocsr(), self.disc.contact_pattern)
         n_local = matrix.shape[0]
         a_const = petsc_matrix(self.comm, matrix, n_local, self.disc.n_dofs, block_size=2)
-        a_const.setOption(PETSc.Mat.Option.SPD, True)
+        a_const.setOption(PETSc.Mat.Option.SPD, self.disc.symmetric)
         a_const.setNearNullSpace(self._rigid_body_modes(a_const))
         return a_const
 
@@ -326,8 +327,10 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         return relative_errors(self.comm, self.disc, self.scene.exact, u, t)
 
 
-def _contact_solver(comm, a_const: PETSc.Mat, law: ContactLaw, method: str) -> ContactStepSolver:
+def _contact_solver(
+    comm, a_const: PETSc.Mat, law: ContactLaw, method: str, symmetric: bool
+) -> ContactStepSolver:
     """The Newton step solver, with the Coulomb fixed point around it when a part needs it."""
     if law.has_coulomb:
-        return CoulombStepSolver(comm, a_const, law, method)
-    return ContactStepSolver(comm, a_const, law, method)
+        return CoulombStepSolver(comm, a_const, law, method, symmetric)
+    return ContactStepSolver(comm, a_const, law, method, symmetric)

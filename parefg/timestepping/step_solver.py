@@ -93,9 +93,17 @@ REUSED_STEP_SNES_OPTIONS = (
 class ContactStepSolver:
     """Semismooth Newton (SNES) with the exact line search of SPEC 4.  Collective."""
 
-    def __init__(self, comm, a_const: PETSc.Mat, law, method: str = DEFAULT_SOLVER_METHOD):
+    def __init__(
+        self,
+        comm,
+        a_const: PETSc.Mat,
+        law,
+        method: str = DEFAULT_SOLVER_METHOD,
+        symmetric: bool = True,
+    ):
         self.comm, self.a_const, self.law = comm, a_const, law
         self.method = SOLVER_METHODS[method]
+        self.symmetric = symmetric  # A_const's symmetry (False with VCI): the factorization
         self.jacobian = a_const.duplicate(copy=True)
         # GAMG needs the rigid-body modes on the matrix it is built from
         self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
@@ -139,7 +147,7 @@ class ContactStepSolver:
         snes.setLineSearchPreCheck(self._exact_line_search)
         snes.setConvergenceTest(self._converged)
         snes.setTolerances(**DEFAULT_TOLERANCES)
-        configure_linear_solver(snes.getKSP())
+        configure_linear_solver(snes.getKSP(), self.symmetric)
         # the line search evaluates F at x - y exactly (basic, undamped): see _residual
         self._full_trial = _check_line_search(PETSc.Options())
         # the step's options are the unprefixed ones (-snes_rtol, -ksp_type: the README's);
