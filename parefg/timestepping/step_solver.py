@@ -90,6 +90,10 @@ REUSED_STEP_SNES_OPTIONS = (
 )
 
 
+#: round-off growth of an exact step's residual beyond eps sqrt(n) |J|_inf |u|_inf
+ROUNDOFF_GROWTH = 1e3
+
+
 class ContactStepSolver:
     """Semismooth Newton (SNES) with the exact line search of SPEC 4.  Collective."""
 
@@ -117,6 +121,8 @@ class ContactStepSolver:
         )
         self.factorizations = 0
         self.jacobian_builds = 0
+        # the Jacobian build whose exact-step acceptances have been checked (see _verify)
+        self._verified_build = -1
         self.residual_norm = self.tolerance = float("nan")  # of the last step
         self._signature: np.ndarray | None = None  # active set the Jacobian was built for
         # active set of the iterate a Newton step started from (set before any step test)
@@ -338,6 +344,7 @@ class ContactStepSolver:
             iterations = self._reused_step(u)
             if iterations is not None:
                 self.reused_steps += 1
+                self._verify(u, t)
                 return iterations
         before = self.jacobian_builds
         self.snes.solve(None, u)
@@ -346,7 +353,37 @@ class ContactStepSolver:
         self.factorizations += self.jacobian_builds - before
         if reason <= 0:
             raise SolverError(f"Newton failed at t = {t:.6g}: {self._why(reason, newton, linear)}")
+        self._verify(u, t)
         return newton, linear
+
+    def _verify(self, u: PETSc.Vec, t: float) -> None:
+        """Check a step accepted as an exact solve, once per Jacobian build.  Collective.
+
+        The exact-step shortcuts accept a full Newton step on one affine piece without
+        evaluating F, trusting the factorization to solve J y = F.  The first such step of
+        each factorization pays one residual evaluation to confirm it: a factorization
+        that solves another system (Cholesky of a nonsymmetric matrix reads one triangle)
+        fails the run here, not silently.  Scale-aware: F of an exact step is the round-off
+        of evaluating J u, up to ~ eps |J|_inf |u|_inf per entry, which a stiff penalty lifts
+        above the step tolerance (alpha_C = 1e12 E/h: |F| = 2e-9 against 2e-10); the bound
+        is the larger of the two, with ROUNDOFF_GROWTH sqrt(n) for the 2-norm and the
+        factorization's growth.
+        """
+        if not np.isnan(self.residual_norm) or self._verified_build == self.jacobian_builds:
+            return
+        self._verified_build = self.jacobian_builds
+        fnorm, _ = self._evaluate(u, self._check)
+        infinity = PETSc.NormType.INFINITY
+        size = self.jacobian.getSize()[0]
+        roundoff = ROUNDOFF_GROWTH * np.sqrt(size) * np.finfo(float).eps
+        bound = max(self.tolerance, roundoff * self.jacobian.norm(infinity) * u.norm(infinity))
+        if not fnorm <= bound:  # also catches NaN
+            raise SolverError(
+                f"Newton failed at t = {t:.6g}: a step accepted as an exact solve leaves "
+                f"|F| = {fnorm:.3g} above the tolerance {self.tolerance:.3g} and its "
+                f"round-off {bound:.3g} (the factorization does not solve the Jacobian: a "
+                "nonsymmetric matrix factored by Cholesky?)"
+            )
 
     def _reused_step(self, u: PETSc.Vec) -> tuple[int, int] | None:
         """The step without SNES, when SNES would end it at its first test or Newton step.

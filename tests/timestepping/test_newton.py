@@ -4,14 +4,19 @@ SNES tolerances; the exact-piece shortcut only with an exact linear solve.
 Scene: the square's manufactured sliding solution (SPEC 6), h = 1/8, m = 1, T = 0.2.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.discretization.operators import build_discretization
 from parefg.errors import InputError, SolverError
 from parefg.run import prepare
+from parefg.scene.loader import load_scene
 from parefg.timestepping.loop import time_loop
+from parefg.timestepping.simulation import Simulation
 
 COMM = MPI.COMM_WORLD
 SHORT = ["discretization.h=0.125", "discretization.degree=1", "time.T=0.2"]
@@ -181,3 +186,19 @@ def test_linear_path_refuses_an_answer_above_the_tolerance(petsc_options):
     petsc_options({"ksp_type": "preonly", "pc_type": "jacobi"})
     with pytest.raises(SolverError, match="above the step tolerance"):
         _run(_simulation(NO_CONTACT))
+
+
+def test_an_exact_step_that_does_not_solve_the_jacobian_fails():
+    """VCI's stiffness is nonsymmetric and factored by LU; factored by Cholesky (one triangle:
+    another system, as before 2026-12-03) the exact-step shortcut would accept steps that
+    do not solve the Jacobian.  The first accepted exact step of each factorization is
+    checked, so the run fails with that message instead."""
+    overrides = ["discretization.degree=3", 'discretization.integration="vci"',
+                 "discretization.h=0.125", "time.dt=0.1", "time.T=0.3"]  # fmt: skip
+    scene = load_scene("z", overrides)
+    disc = build_discretization(COMM, scene)
+    assert not disc.symmetric
+    _run(Simulation(COMM, scene, disc))  # LU: the steps meet the tolerance
+    cholesky = Simulation(COMM, scene, dataclasses.replace(disc, symmetric=True))
+    with pytest.raises(SolverError, match="accepted as an exact solve"):
+        _run(cholesky)
