@@ -168,9 +168,7 @@ def mesh_domain(domain: dict, h: float, cells: str = CellType.QUAD, budget=None)
         # Size options first, so that a .geo file can read h as Mesh.MeshSizeMax.
         _set_mesh_options(gmsh, h, cells, recombine=False)
         built = shape.build(gmsh, domain, h, cells)
-        _set_mesh_options(
-            gmsh, h, cells, recombine=cells == CellType.QUAD and built.lattice is None
-        )
+        _set_mesh_options(gmsh, h, cells, recombine=cells == CellType.QUAD and not built.structured)
         if budget is not None and shape.outline is None:  # a .geo file: only gmsh knows it
             extent = _surfaces_extent(gmsh, built.surfaces)
             budget.check_extent(*extent)
@@ -224,7 +222,8 @@ def _surfaces_extent(gmsh, surfaces: list[int]) -> tuple[float, float]:
 
 
 def _set_mesh_options(gmsh, h: float, cells: str, recombine: bool) -> None:
-    """Order-1 mesh at size h; quads by Blossom recombination of Frontal-Delaunay triangles.
+    """Order-1 mesh at size h; unstructured quads by Blossom recombination of Frontal-Delaunay
+    triangles (structured domains set their transfinite surfaces' cells themselves).
 
     gmsh's "Frontal-Delaunay for quads" (Mesh.Algorithm 8) crashes the
     process in Debian's gmsh 4.8, so quads come from recombining the plain

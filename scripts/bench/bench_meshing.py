@@ -52,7 +52,7 @@ def child(domain: str, h: float, cells: str) -> dict:
         start = time.perf_counter()
         gmsh_mesh._set_mesh_options(gmsh, h, cells, recombine=False)
         built = SHAPES[table["shape"]].build(gmsh, table, h, cells)
-        recombine = cells == "quad" and built.lattice is None
+        recombine = cells == "quad" and not built.structured
         gmsh_mesh._set_mesh_options(gmsh, h, cells, recombine=recombine)
         times["build"] = time.perf_counter() - start
         start = time.perf_counter()
