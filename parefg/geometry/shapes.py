@@ -45,6 +45,9 @@ Z_PATCHES = (
 Z_ARRANGEMENTS = ("Left", "Left", "Right", "Left", "Left")
 # The outline through the splitting points: boundary curve i runs from point i to i + 1.
 Z_BOUNDARY = (0, 10, 1, 2, 3, 4, 5, 11, 6, 7, 8, 9)
+# Cells along every curve of the Z at least: its strips are 0.25 thick, and a cubic MLS
+# basis (m = 3) is singular where all the nodes of a support lie on 3 rows (2 cells).
+Z_MIN_CELLS = 3
 
 #: (vertices (n, 2), edge names (n,)) of a domain's outline; edge i runs from vertex i to i + 1
 Outline = tuple[Sequence, Sequence[str]]
@@ -139,12 +142,12 @@ def _build_box(gmsh, origin, size, h: float, cells: str) -> GmshDomain:
     return GmshDomain([surface], parts, lattice, structured=True)
 
 
-def _transfinite_cells(length: float, h: float) -> int:
-    """Cells along a transfinite curve of this length: ceil(length / h), at least 1.
+def _transfinite_cells(length: float, h: float, at_least: int = 1) -> int:
+    """Cells along a transfinite curve of this length: ceil(length / h), at least ``at_least``.
 
     The tolerance guards ceil against length / h landing a rounding error above an integer.
     """
-    return max(1, math.ceil(length / h - 1e-9))
+    return max(at_least, math.ceil(length / h - 1e-9))
 
 
 def _set_transfinite_surface(gmsh, surface: int, cells: str, arrangement: str = "Left") -> None:
@@ -163,9 +166,9 @@ def _build_z(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
     """The Z-shaped polygon of the paper's second example as five transfinite patches.
 
     The patches (:data:`Z_PATCHES`) share their common curves, so the mesh is conforming;
-    a curve of length L gets ceil(L / h) cells, which is the same on opposite sides of a
-    patch (they have equal lengths).  Its parts are those of the polygon
-    (:data:`Z_EDGE_NAMES`), in the same order.
+    a curve of length L gets ceil(L / h) cells (at least :data:`Z_MIN_CELLS`), which is
+    the same on opposite sides of a patch (they have equal lengths).  Its parts are those
+    of the polygon (:data:`Z_EDGE_NAMES`), in the same order.
     """
     points = [gmsh.model.geo.addPoint(x, y, 0.0, h) for x, y in Z_PATCH_POINTS]
     lines: dict[tuple[int, int], int] = {}  # (start, end) point indices -> line tag
@@ -185,7 +188,7 @@ def _build_z(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
     gmsh.model.geo.synchronize()
     for (start, end), tag in lines.items():
         length = math.dist(Z_PATCH_POINTS[start], Z_PATCH_POINTS[end])
-        gmsh.model.mesh.setTransfiniteCurve(tag, _transfinite_cells(length, h) + 1)
+        gmsh.model.mesh.setTransfiniteCurve(tag, _transfinite_cells(length, h, Z_MIN_CELLS) + 1)
     for surface, arrangement in zip(surfaces, Z_ARRANGEMENTS, strict=True):
         _set_transfinite_surface(gmsh, surface, cells, arrangement)
     # Boundary curve -> the name of the outline edge it lies on (the split edges: 0 and 5).

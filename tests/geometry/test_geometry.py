@@ -174,11 +174,12 @@ def z_patch_counts(h):
     """(n_nodes, n_cells) of the Z's five transfinite patches, from their side lengths.
 
     Bottom-left 0.4 x 0.25, bottom-right 0.6 x 0.25, the parallelogram 0.4 x |(0.6, 0.5)|,
-    top-left 0.6 x 0.25, top-right 0.4 x 0.25; ceil(L / h) cells along a side.  Four sides
-    are shared (bottom-left with bottom-right and with the parallelogram, the parallelogram
-    with top-right, top-left with top-right), and their nodes counted once.
+    top-left 0.6 x 0.25, top-right 0.4 x 0.25; ceil(L / h) cells along a side, at least 3.
+    Four sides are shared (bottom-left with bottom-right and with the parallelogram, the
+    parallelogram with top-right, top-left with top-right), and their nodes counted once.
     """
-    n = {length: int(np.ceil(length / h - 1e-9)) for length in (0.25, 0.4, 0.6, np.hypot(0.6, 0.5))}
+    lengths = (0.25, 0.4, 0.6, np.hypot(0.6, 0.5))
+    n = {length: max(3, int(np.ceil(length / h - 1e-9))) for length in lengths}
     sides = [(0.4, 0.25), (0.6, 0.25), (0.4, np.hypot(0.6, 0.5)), (0.6, 0.25), (0.4, 0.25)]
     cells = sum(n[a] * n[b] for a, b in sides)
     nodes = sum((n[a] + 1) * (n[b] + 1) for a, b in sides)
@@ -186,7 +187,7 @@ def z_patch_counts(h):
     return nodes - shared, cells
 
 
-@pytest.mark.parametrize("h", [0.05, 0.3])
+@pytest.mark.parametrize("h", [0.05, 0.125, 0.3])
 def test_z_is_five_conforming_transfinite_patches(h):
     """All quads (no recombination leftovers), as many as the patches hold, conforming
     (check_common: a hanging node would leave an interior boundary segment)."""
