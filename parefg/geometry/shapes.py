@@ -70,6 +70,20 @@ class GmshDomain:
 
 
 @dataclass(frozen=True)
+class Patches:
+    """A domain meshed as conforming transfinite quadrilateral patches (the size estimate).
+
+    ``sides`` = (length of one pair of opposite sides, of the other) of each patch;
+    ``boundary`` = the lengths of the curves on the domain's boundary; a curve of length L
+    gets max(min_cells, ceil(L / h)) cells.
+    """
+
+    sides: tuple[tuple[float, float], ...]
+    boundary: tuple[float, ...]
+    min_cells: int
+
+
+@dataclass(frozen=True)
 class Shape:
     """One built-in domain shape.
 
@@ -91,6 +105,8 @@ class Shape:
     box : callable or None
         domain -> (origin, size) of a rectangle meshed as a structured grid; None for
         the other shapes.
+    patches : callable or None
+        domain -> :class:`Patches` of a domain meshed as transfinite patches ("z").
     """
 
     name: str
@@ -100,6 +116,7 @@ class Shape:
     check: Callable[[dict], tuple[str, str] | None] | None = None
     parts: tuple[str, ...] | None = None
     box: Callable[[dict], tuple[Sequence[float], Sequence[float]]] | None = None
+    patches: Callable[[dict], Patches] | None = None
 
 
 def _unit_box(domain: dict) -> tuple[Sequence[float], Sequence[float]]:
@@ -160,6 +177,17 @@ def _set_transfinite_surface(gmsh, surface: int, cells: str, arrangement: str = 
 
 def _z_outline(domain: dict) -> Outline:
     return Z_VERTICES, Z_EDGE_NAMES
+
+
+def _z_patches(domain: dict) -> Patches:
+    """The side lengths of the Z's patches and of its boundary curves."""
+
+    def length(start: int, end: int) -> float:
+        return math.dist(Z_PATCH_POINTS[start], Z_PATCH_POINTS[end])
+
+    sides = tuple((length(a, b), length(b, c)) for a, b, c, _ in Z_PATCHES)
+    ends = zip(Z_BOUNDARY, Z_BOUNDARY[1:] + Z_BOUNDARY[:1], strict=True)
+    return Patches(sides, tuple(length(a, b) for a, b in ends), Z_MIN_CELLS)
 
 
 def _build_z(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
@@ -323,7 +351,7 @@ SHAPES: dict[str, Shape] = {
     for shape in (
         _box_shape("square", _unit_box, ()),
         _box_shape("rectangle", _given_box, ("size", "origin")),
-        Shape("z", _build_z, (), _z_outline, parts=Z_PART_NAMES),
+        Shape("z", _build_z, (), _z_outline, parts=Z_PART_NAMES, patches=_z_patches),
         Shape(
             "polygon", _build_polygon, ("vertices", "edge_names"), _polygon_outline, _check_polygon
         ),
