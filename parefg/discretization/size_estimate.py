@@ -182,11 +182,12 @@ def patches_size(scene, patches) -> Size:
     Counts are exact: F quads in all, B boundary segments and, by Euler's formula for a
     simply connected conforming quad mesh (V - E + F = 1, 4 F = 2 E - B), V = 1 + F + B / 2
     nodes; triangles split each quad in two.  The local geometry is a grid's of square cells.
+    A curve has at least m cells (``min_cells`` of :class:`~parefg.geometry.shapes.Shape`).
     """
     h = scene.discretization.h
 
     def steps(length: float) -> float:
-        return max(patches.min_cells, _steps(length, h))
+        return max(scene.discretization.degree, _steps(length, h))
 
     quads = sum(steps(a) * steps(b) for a, b in patches.sides)
     n_segments = sum(steps(length) for length in patches.boundary)

@@ -45,9 +45,6 @@ Z_PATCHES = (
 Z_ARRANGEMENTS = ("Left", "Left", "Right", "Left", "Left")
 # The outline through the splitting points: boundary curve i runs from point i to i + 1.
 Z_BOUNDARY = (0, 10, 1, 2, 3, 4, 5, 11, 6, 7, 8, 9)
-# Cells along every curve of the Z at least: its strips are 0.25 thick, and a cubic MLS
-# basis (m = 3) is singular where all the nodes of a support lie on 3 rows (2 cells).
-Z_MIN_CELLS = 3
 
 #: (vertices (n, 2), edge names (n,)) of a domain's outline; edge i runs from vertex i to i + 1
 Outline = tuple[Sequence, Sequence[str]]
@@ -75,12 +72,11 @@ class Patches:
 
     ``sides`` = (length of one pair of opposite sides, of the other) of each patch;
     ``boundary`` = the lengths of the curves on the domain's boundary; a curve of length L
-    gets max(min_cells, ceil(L / h)) cells.
+    gets max(min_cells, ceil(L / h)) cells (``min_cells``: see :class:`Shape`).
     """
 
     sides: tuple[tuple[float, float], ...]
     boundary: tuple[float, ...]
-    min_cells: int
 
 
 @dataclass(frozen=True)
@@ -92,7 +88,10 @@ class Shape:
     name : str
         The value of ``[domain] shape``.
     build : callable
-        (gmsh, domain, h, cells) -> :class:`GmshDomain`: creates the gmsh geometry.
+        (gmsh, domain, h, cells, min_cells) -> :class:`GmshDomain`: creates the gmsh
+        geometry.  ``min_cells``: at least that many cells along each curve of a patched
+        domain (the MLS degree m: a degree-m basis needs m + 1 node rows across the Z's
+        0.25-thick strips); the other shapes ignore it.
     keys : tuple of str
         The keys of its ``[domain]`` table besides ``shape``, in reading order.
     outline : callable or None
@@ -136,7 +135,7 @@ def _box_shape(name: str, box, keys: tuple[str, ...]) -> Shape:
         (x0, y0), (lx, ly) = box(domain)
         return [(x0, y0), (x0 + lx, y0), (x0 + lx, y0 + ly), (x0, y0 + ly)], BOX_PART_NAMES
 
-    def build(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
+    def build(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> GmshDomain:
         origin, size = box(domain)
         return _build_box(gmsh, origin, size, h, cells)
 
@@ -187,15 +186,16 @@ def _z_patches(domain: dict) -> Patches:
 
     sides = tuple((length(a, b), length(b, c)) for a, b, c, _ in Z_PATCHES)
     ends = zip(Z_BOUNDARY, Z_BOUNDARY[1:] + Z_BOUNDARY[:1], strict=True)
-    return Patches(sides, tuple(length(a, b) for a, b in ends), Z_MIN_CELLS)
+    return Patches(sides, tuple(length(a, b) for a, b in ends))
 
 
-def _build_z(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
+def _build_z(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> GmshDomain:
     """The Z-shaped polygon of the paper's second example as five transfinite patches.
 
     The patches (:data:`Z_PATCHES`) share their common curves, so the mesh is conforming;
-    a curve of length L gets ceil(L / h) cells (at least :data:`Z_MIN_CELLS`), which is
-    the same on opposite sides of a patch (they have equal lengths).  Its parts are those
+    a curve of length L gets ceil(L / h) cells, at least ``min_cells``, which is the same
+    on opposite sides of a patch (they have equal lengths).  At h = 1/8 its strips have 2
+    cells across, 3 node rows: a cubic MLS basis there needs ``min_cells`` = 3.  Its parts are those
     of the polygon (:data:`Z_EDGE_NAMES`), in the same order.
     """
     points = [gmsh.model.geo.addPoint(x, y, 0.0, h) for x, y in Z_PATCH_POINTS]
@@ -216,7 +216,7 @@ def _build_z(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
     gmsh.model.geo.synchronize()
     for (start, end), tag in lines.items():
         length = math.dist(Z_PATCH_POINTS[start], Z_PATCH_POINTS[end])
-        gmsh.model.mesh.setTransfiniteCurve(tag, _transfinite_cells(length, h, Z_MIN_CELLS) + 1)
+        gmsh.model.mesh.setTransfiniteCurve(tag, _transfinite_cells(length, h, min_cells) + 1)
     for surface, arrangement in zip(surfaces, Z_ARRANGEMENTS, strict=True):
         _set_transfinite_surface(gmsh, surface, cells, arrangement)
     # Boundary curve -> the name of the outline edge it lies on (the split edges: 0 and 5).
@@ -241,7 +241,7 @@ def _check_polygon(domain: dict) -> tuple[str, str] | None:
     return None if problem is None else ("vertices", problem)
 
 
-def _build_polygon(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
+def _build_polygon(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> GmshDomain:
     """Counter-clockwise polygon; edges with equal names form one part."""
     vertices = np.asarray(domain.get("vertices", ()), dtype=float)  # (n_vertices, 2)
     names = list(domain.get("edge_names", ()))
@@ -269,7 +269,7 @@ def _add_polygon_surface(gmsh, vertices, h: float):
     return surface, lines
 
 
-def _build_from_geo(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
+def _build_from_geo(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> GmshDomain:
     """A user .geo file, checked by :mod:`parefg.geometry.geo`; its physical curves are the parts.
 
     gmsh reads the checked text from a file in a private temporary directory, not

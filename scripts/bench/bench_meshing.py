@@ -92,7 +92,7 @@ def child(domain: str, h: float, cells: str, algorithm: int | None = None) -> di
         gmsh_mesh._gmsh_initialize(gmsh)
         start = time.perf_counter()
         gmsh_mesh._set_mesh_options(gmsh, h, cells, recombine=False)
-        built = SHAPES[table["shape"]].build(gmsh, table, h, cells)
+        built = SHAPES[table["shape"]].build(gmsh, table, h, cells)  # min_cells 1 (m = 1)
         recombine = cells == "quad" and not built.structured
         gmsh_mesh._set_mesh_options(gmsh, h, cells, recombine=recombine)
         if algorithm is not None:

@@ -359,11 +359,13 @@ def test_estimate_follows_the_mesh(source, overrides, tolerance):
 
 @pytest.mark.parametrize("h", [0.3, 0.125, 0.1, 0.03125])
 @pytest.mark.parametrize("cells", ["quad", "tri"])
-def test_z_counts_are_exact(h, cells):
-    """The Z's patch counts, down to the coarse h where its strips keep 3 cells (Z_MIN_CELLS)."""
-    scene = load_scene("z", [f"discretization.h={h}", f"discretization.cells='{cells}'"])
+@pytest.mark.parametrize("degree", [1, 3])
+def test_z_counts_are_exact(h, cells, degree):
+    """The Z's patch counts, also at a coarse h where its sides get m cells (min_cells)."""
+    sets = [f"discretization.h={h}", f"discretization.cells='{cells}'"]
+    scene = load_scene("z", [*sets, f"discretization.degree={degree}"])
     size = estimate_scene(scene)
-    cloud = build_node_cloud(COMM, scene.domain, h, cells)
+    cloud = build_node_cloud(COMM, scene.domain, h, cells, min_cells=degree)
     assert size.n_nodes == cloud.n_nodes
     assert size.n_cells == len(cloud.quads) + len(cloud.triangles)
     assert size.n_boundary_points == len(cloud.segments) * scene.discretization.quadrature

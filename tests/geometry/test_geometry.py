@@ -170,16 +170,16 @@ def test_z_domain(zcloud):
     check_common(zcloud, lambda p, tol=1e-9: in_polygon(p, Z_POLYGON, tol))
 
 
-def z_patch_counts(h):
+def z_patch_counts(h, min_cells=1):
     """(n_nodes, n_cells) of the Z's five transfinite patches, from their side lengths.
 
     Bottom-left 0.4 x 0.25, bottom-right 0.6 x 0.25, the parallelogram 0.4 x |(0.6, 0.5)|,
-    top-left 0.6 x 0.25, top-right 0.4 x 0.25; ceil(L / h) cells along a side, at least 3.
+    top-left 0.6 x 0.25, top-right 0.4 x 0.25; ceil(L / h) cells along a side, at least min_cells.
     Four sides are shared (bottom-left with bottom-right and with the parallelogram, the
     parallelogram with top-right, top-left with top-right), and their nodes counted once.
     """
     lengths = (0.25, 0.4, 0.6, np.hypot(0.6, 0.5))
-    n = {length: max(3, int(np.ceil(length / h - 1e-9))) for length in lengths}
+    n = {length: max(min_cells, int(np.ceil(length / h - 1e-9))) for length in lengths}
     sides = [(0.4, 0.25), (0.6, 0.25), (0.4, np.hypot(0.6, 0.5)), (0.6, 0.25), (0.4, 0.25)]
     cells = sum(n[a] * n[b] for a, b in sides)
     nodes = sum((n[a] + 1) * (n[b] + 1) for a, b in sides)
@@ -187,12 +187,14 @@ def z_patch_counts(h):
     return nodes - shared, cells
 
 
-@pytest.mark.parametrize("h", [0.05, 0.125, 0.3])
-def test_z_is_five_conforming_transfinite_patches(h):
+@pytest.mark.parametrize("h, min_cells", [(0.05, 1), (0.125, 1), (0.125, 3), (0.3, 1), (0.3, 2)])
+def test_z_is_five_conforming_transfinite_patches(h, min_cells):
     """All quads (no recombination leftovers), as many as the patches hold, conforming
-    (check_common: a hanging node would leave an interior boundary segment)."""
-    cloud = build_node_cloud(COMM, {"shape": "z"}, h)
-    n_nodes, n_cells = z_patch_counts(h)
+    (check_common: a hanging node would leave an interior boundary segment); min_cells
+    (the MLS degree) raises the count of a coarse patch side, such as the 0.25-thick
+    strips' 2 cells at h = 1/8."""
+    cloud = build_node_cloud(COMM, {"shape": "z"}, h, min_cells=min_cells)
+    n_nodes, n_cells = z_patch_counts(h, min_cells)
     assert cloud.coords.shape == (n_nodes, 2)
     assert cloud.quads.shape == (n_cells, 4) and cloud.triangles.shape == (0, 3)
     # The parallelogram's cells keep its angles: 90 degrees or its 39.8 / 140.2.
