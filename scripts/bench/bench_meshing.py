@@ -3,8 +3,9 @@
 Each case (domain, cells, target node count) runs in a fresh process, which meshes the
 domain as parefg.geometry.gmsh_mesh.mesh_domain does (same options, same builders) and
 times its phases: "build" (gmsh geometry), "generate" (gmsh.model.mesh.generate(2)) and
-"extract" (the NodeCloud: cells, spacing, boundary segments), with the process's peak
-RSS.  h is chosen from the target count (square: (1/h + 1)^2 nodes; others: the budget's
+"extract" (the NodeCloud: cells, spacing, boundary segments), wall and CPU time (the CPU
+time of this process is the steadier number on a shared machine), with its peak RSS.
+h is chosen from the target count (square: (1/h + 1)^2 nodes; others: the budget's
 unstructured density).  A case that exceeds --timeout seconds is reported as such, and so
 is one whose process dies (gmsh's Mesh.Algorithm 8 crashes in Debian's gmsh 4.8).
 
@@ -98,12 +99,14 @@ def child(domain: str, h: float, cells: str, algorithm: int | None = None) -> di
         if algorithm is not None:
             gmsh.option.setNumber("Mesh.Algorithm", algorithm)
         times["build"] = time.perf_counter() - start
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         gmsh.model.mesh.generate(2)
         times["generate"] = time.perf_counter() - start
-        start = time.perf_counter()
+        times["generate_cpu"] = time.process_time() - cpu
+        start, cpu = time.perf_counter(), time.process_time()
         cloud = gmsh_mesh._extract_cloud(gmsh, built, cells)
         times["extract"] = time.perf_counter() - start
+        times["extract_cpu"] = time.process_time() - cpu
         gmsh.finalize()
     return {
         "nodes": cloud.n_nodes,
@@ -157,10 +160,10 @@ def main():
     args = parser.parse_args()
     algorithms = [a for a in args.algorithms.split(",") if a]
     print(
-        "| domain | cells | algorithm | nodes | quads | triangles | generate [s] | extract [s] "
-        "| min angle | 1% angle | RSS [MB] |"
+        "| domain | cells | algorithm | nodes | quads | triangles | generate [s] "
+        "| generate CPU [s] | extract CPU [s] | min angle | 1% angle | RSS [MB] |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for case in expand(args.cases.split(","), algorithms):
         for nodes in (float(n) for n in args.nodes.split(",")):
@@ -172,7 +175,8 @@ def main():
                 break  # larger targets only take longer
             print(
                 f"{head} {row['nodes']} | {row['quads']} | {row['triangles']} | "
-                f"{row['generate']:.2f} | {row['extract']:.2f} | {row['min_angle']} | "
+                f"{row['generate']:.2f} | {row['generate_cpu']:.2f} | {row['extract_cpu']:.2f} | "
+                f"{row['min_angle']} | "
                 f"{row['p01_angle']} | {row['peak_rss_mb']} |",
                 flush=True,
             )
