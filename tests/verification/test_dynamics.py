@@ -82,15 +82,18 @@ def test_a_motion_quadratic_in_time_has_no_time_error():
 @pytest.mark.parametrize("scene_name", ["square", "z"])
 @pytest.mark.parametrize("degree", [1, 2])
 def test_dynamic_spatial_rates_without_time_error(scene_name, degree):
-    """The time-exact motion, dt = 0.05, h = 1/8, 1/16: H1 rate in [m - 0.2, m + 0.6], L2 in
-    [m + 0.65, m + 1.7] at m = 1 and >= m + 0.3 at m = 2, the bounds of the static tests.
+    """The time-exact motion, dt = 0.05, h = 1/8, 1/16 (the Z at m = 2: 1/8, 1/16, 1/32):
+    H1 rate in [m - 0.2, m + 0.6], L2 in [m + 0.65, m + 1.7] at m = 1 and >= m + 0.3 at
+    m = 2, the bounds of the static tests.
 
-    Measured L2 / H1 rates: m = 1 square 2.41 / 1.47, Z 2.23 / 1.45; m = 2 square 2.73 / 2.18,
-    Z 2.70 / 2.08.  At m = 2 the L2 rate falls below 2 from h = 1/16 to 1/32 (2.6e-6 ->
-    1.0e-6): penalty contact's consistency error u_n = sigma_n / alpha_C (alpha_C = 1e4 E/h,
-    O(h)) is the floor there; see the README's dynamic convergence tables.
+    Measured L2 / H1 rates: m = 1 square 2.41 / 1.47, Z 2.42 / 1.56; m = 2 square 2.73 / 2.18,
+    Z 2.45 / 2.22 (from 1/8 to 1/16 alone 3.37 / 2.82: at h = 1/8 the Z's 0.25-thick strips
+    are 2 cells across, pre-asymptotic).  At m = 2 the L2 rate falls below 2 from h = 1/16 to
+    1/32 (square 2.6e-6 -> 1.0e-6, Z 3.5e-6 -> 1.2e-6): penalty contact's consistency error
+    u_n = sigma_n / alpha_C (alpha_C = 1e4 E/h, O(h)) is the floor there; see the README's
+    dynamic convergence tables.
     """
-    sizes = [0.125, 0.0625]
+    sizes = [0.125, 0.0625, 0.03125] if (scene_name, degree) == ("z", 2) else [0.125, 0.0625]
     fixed = [TIME_EXACT, f"discretization.degree={degree}", "time.dt=0.05"]
     runs = [errors(scene_name, [*fixed, f"discretization.h={h}"]) for h in sizes]
     h1_rate = fitted_rate(sizes, [e["h1_rel"] for e in runs])
