@@ -195,8 +195,8 @@ def _build_z(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> Gm
     The patches (:data:`Z_PATCHES`) share their common curves, so the mesh is conforming;
     a curve of length L gets ceil(L / h) cells, at least ``min_cells``, which is the same
     on opposite sides of a patch (they have equal lengths).  At h = 1/8 its strips have 2
-    cells across, 3 node rows: a cubic MLS basis there needs ``min_cells`` = 3.  Its parts are those
-    of the polygon (:data:`Z_EDGE_NAMES`), in the same order.
+    cells across, 3 node rows: a cubic MLS basis there needs ``min_cells`` = 3.  Its parts
+    are those of the polygon (:data:`Z_EDGE_NAMES`), in the same order.
     """
     points = [gmsh.model.geo.addPoint(x, y, 0.0, h) for x, y in Z_PATCH_POINTS]
     lines: dict[tuple[int, int], int] = {}  # (start, end) point indices -> line tag
