@@ -133,7 +133,8 @@ def test_static_rates_of_the_penalty_at_degree_1(comm, tmp_path, shape):
     strict=True,
     reason="regression of the structured Z (five transfinite patches): VCI m = 3 L2 "
     "4.19e-7, 3.89e-8 at h = 1/16, 1/32 (rate 3.43 < 3.65), 4.82e-8 at 1/64 (Blossom mesh: "
-    "4.74e-7, 2.38e-8, 8.37e-9); 16 x 16 points give 4.14e-7, 2.49e-8; cause not found",
+    "4.74e-7, 2.38e-8, 8.37e-9); quadrature-limited on its quads: 16 x 16 points give "
+    "4.14e-7, 2.49e-8, and the same nodes with cells = 'tri' 2.28e-8 at 1/32",
 )
 def test_static_rates_of_vci_on_the_z_at_degree_3(comm, tmp_path):
     """The Z at m = 3 with variationally consistent integration (discretization.integration
