@@ -115,6 +115,7 @@ class _Builder(BoundaryOperators):
                 scene.discretization.jitter,
                 scene.discretization.seed,
                 budget,
+                min_cells=scene.discretization.degree,
             )
             budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
             self.cloud, self.partition = partition_on_root(comm, cloud)

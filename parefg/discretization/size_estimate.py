@@ -34,7 +34,11 @@ UNSTRUCTURED_LOCAL = {CellType.QUAD: (1.03, 0.97), CellType.TRI: (1.155, 0.43)}
 # Mean incident edge of a node of a structured triangle grid: (4 + 2 sqrt 2) / 6 steps.
 TRIANGLE_GRID_SPACING = (4 + 2 * math.sqrt(2)) / 6
 # n_max / (mean neighbours): padded neighbour lists are as long as the fullest point's.
-PADDING = {"grid": 1.15, "unstructured": 1.4}
+# Transfinite patches (the "z"): the mean from the strips' near-square cells (the grid's
+# local geometry, the median node), n_max in the parallelogram, whose 40-degree quads hold
+# 1 / sin 40 = 1.56 x as many nodes per c^2: measured n_max / mean 1.63-1.67 for quads and
+# 1.12-1.23 for triangles (split along the short diagonal) at h = 0.02, m = 1, 2, 3.
+PADDING = {"grid": 1.15, "unstructured": 1.4, "patches quad": 1.8, "patches tri": 1.4}
 
 # Measured bytes (scripts/bench/calibrate_budget.py; square, m = 1, 2, direct and iterative,
 # 2e3 ... 1e6 DOFs, 1 and 2 ranks): a least-squares fit of peak_rss_mb, times 1.2 (base
@@ -128,11 +132,13 @@ def _polygon_extent(vertices) -> tuple[float, float]:
 
 
 def _padding(scene) -> float:
-    """n_max / mean neighbours: structured grids for the box shapes (Shape.box)."""
+    """n_max / mean neighbours: structured grids (Shape.box), patches (Shape.patches) or not."""
     from parefg.geometry.shapes import SHAPES
 
-    structured = SHAPES[scene.domain["shape"]].box is not None
-    return PADDING["grid" if structured else "unstructured"]
+    shape = SHAPES[scene.domain["shape"]]
+    if shape.patches is not None:
+        return PADDING[f"patches {scene.discretization.cells}"]
+    return PADDING["grid" if shape.box is not None else "unstructured"]
 
 
 def _size(scene, n_nodes, n_cells, n_segments, kappa: float, alpha: float) -> Size:
@@ -170,6 +176,28 @@ def grid_size(scene, lx: float, ly: float) -> Size:
     return _size(scene, n_nodes, n_cells, 2 * (n_x + n_y), kappa, alpha)
 
 
+def patches_size(scene, patches) -> Size:
+    """Size of a domain meshed as conforming transfinite patches (:class:`Patches`, "z").
+
+    Counts are exact: F quads in all, B boundary segments and, by Euler's formula for a
+    simply connected conforming quad mesh (V - E + F = 1, 4 F = 2 E - B), V = 1 + F + B / 2
+    nodes; triangles split each quad in two.  The local geometry is a grid's of square cells.
+    A curve has at least m cells (``min_cells`` of :class:`~parefg.geometry.shapes.Shape`).
+    """
+    h = scene.discretization.h
+
+    def steps(length: float) -> float:
+        return max(scene.discretization.degree, _steps(length, h))
+
+    quads = sum(steps(a) * steps(b) for a, b in patches.sides)
+    n_segments = sum(steps(length) for length in patches.boundary)
+    triangles = scene.discretization.cells == CellType.TRI
+    kappa = TRIANGLE_GRID_SPACING**2 if triangles else 1.0
+    alpha = 1 / kappa / (2 if triangles else 1)
+    n_cells = quads * (2 if triangles else 1)
+    return _size(scene, 1 + quads + n_segments / 2, n_cells, n_segments, kappa, alpha)
+
+
 def unstructured_size(scene, area: float, perimeter: float, h: float | None = None) -> Size:
     """Size of gmsh's Frontal-Delaunay mesh (recombined for quads) of a domain A, P at h.
 
@@ -201,6 +229,8 @@ def estimate_scene(scene) -> Size | None:
     if shape.box is not None:  # a structured grid
         _, (lx, ly) = shape.box(scene.domain)
         return grid_size(scene, float(lx), float(ly))
+    if shape.patches is not None:
+        return patches_size(scene, shape.patches(scene.domain))
     if shape.outline is not None:
         return unstructured_size(scene, *_polygon_extent(shape.outline(scene.domain)[0]))
     return None

@@ -50,6 +50,7 @@ def build_node_cloud(
     jitter: float = 0.0,
     seed: int = 0,
     budget=None,
+    min_cells: int = 1,
 ) -> NodeCloud:
     """Mesh a domain with gmsh on rank 0 and broadcast the node cloud.
 
@@ -73,19 +74,24 @@ def build_node_cloud(
         by at most jitter c_I (:func:`parefg.geometry.jitter.jitter_cloud`); 0 keeps the mesh nodes.
     budget : parefg.discretization.budget.Budget, optional
         Refuses a .geo domain too large for the machine before gmsh meshes it.
+    min_cells : int
+        At least that many cells along each curve of a domain meshed as transfinite
+        patches ("z"; the MLS degree m, see :class:`~parefg.geometry.shapes.Shape`).
     """
-    return call_on_root(comm, _jittered_mesh, domain, h, cells, jitter, seed, budget)
+    return call_on_root(comm, _jittered_mesh, domain, h, cells, jitter, seed, budget, min_cells)
 
 
-def _jittered_mesh(domain: dict, h: float, cells: str, jitter: float, seed: int, budget):
+def _jittered_mesh(
+    domain: dict, h: float, cells: str, jitter: float, seed: int, budget, min_cells: int
+):
     """:func:`build_node_cloud` on one rank: the meshed (or cached), jittered cloud."""
-    in_memory = mesh_cache.memory_key(domain, h, cells)
+    in_memory = mesh_cache.memory_key(domain, h, cells, min_cells)
     cloud = mesh_cache.recall(in_memory)
     if cloud is None:
-        key = mesh_cache.mesh_key(domain, h, cells)
+        key = mesh_cache.mesh_key(domain, h, cells, min_cells)
         cloud = mesh_cache.load(key)
         if cloud is None:
-            cloud = mesh_domain(domain, h, cells, budget)
+            cloud = mesh_domain(domain, h, cells, budget, min_cells)
             mesh_cache.store(key, cloud)
         mesh_cache.remember(in_memory, cloud)
     return jitter_cloud(cloud, jitter, seed)
@@ -144,7 +150,9 @@ def _fd_open(fd: int) -> bool:
 
 @_stdin_closed()
 @_private_home()
-def mesh_domain(domain: dict, h: float, cells: str = CellType.QUAD, budget=None) -> NodeCloud:
+def mesh_domain(
+    domain: dict, h: float, cells: str = CellType.QUAD, budget=None, min_cells: int = 1
+) -> NodeCloud:
     """Build, mesh and extract one domain in this process (not collective).
 
     gmsh never reads stdin here (:func:`_gmsh_initialize`, :func:`_stdin_closed`).  With a
@@ -167,10 +175,8 @@ def mesh_domain(domain: dict, h: float, cells: str = CellType.QUAD, budget=None)
     try:
         # Size options first, so that a .geo file can read h as Mesh.MeshSizeMax.
         _set_mesh_options(gmsh, h, cells, recombine=False)
-        built = shape.build(gmsh, domain, h, cells)
-        _set_mesh_options(
-            gmsh, h, cells, recombine=cells == CellType.QUAD and built.lattice is None
-        )
+        built = shape.build(gmsh, domain, h, cells, min_cells)
+        _set_mesh_options(gmsh, h, cells, recombine=cells == CellType.QUAD and not built.structured)
         if budget is not None and shape.outline is None:  # a .geo file: only gmsh knows it
             extent = _surfaces_extent(gmsh, built.surfaces)
             budget.check_extent(*extent)
@@ -224,7 +230,8 @@ def _surfaces_extent(gmsh, surfaces: list[int]) -> tuple[float, float]:
 
 
 def _set_mesh_options(gmsh, h: float, cells: str, recombine: bool) -> None:
-    """Order-1 mesh at size h; quads by Blossom recombination of Frontal-Delaunay triangles.
+    """Order-1 mesh at size h; unstructured quads by Blossom recombination of Frontal-Delaunay
+    triangles (structured domains set their transfinite surfaces' cells themselves).
 
     gmsh's "Frontal-Delaunay for quads" (Mesh.Algorithm 8) crashes the
     process in Debian's gmsh 4.8, so quads come from recombining the plain

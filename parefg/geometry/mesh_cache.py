@@ -54,16 +54,22 @@ def _outlined(domain: dict) -> bool:
     return shape is not None and shape.outline is not None
 
 
-def mesh_key(domain: dict, h: float, cells: str) -> str | None:
+def _mesh_inputs(domain: dict, h: float, cells: str, min_cells: int) -> dict:
+    """What the mesh depends on; ``min_cells`` only for a domain meshed as patches."""
+    inputs = {"domain": domain, "h": float(h), "cells": cells}
+    if SHAPES[domain["shape"]].patches is not None:
+        inputs["min_cells"] = int(min_cells)
+    return inputs
+
+
+def mesh_key(domain: dict, h: float, cells: str, min_cells: int = 1) -> str | None:
     """The cache key of one mesh, or None when it is not cached (a .geo domain, or the
     cache is off: the key reads the package source, which a run need not pay for)."""
     if user_cache.cache_dir("meshes") is None or not _outlined(domain):
         return None
     identity = {
         "format": FORMAT,
-        "domain": domain,
-        "h": float(h),
-        "cells": cells,
+        **_mesh_inputs(domain, h, cells, min_cells),
         "gmsh": _gmsh_identity(),
         "source": user_cache.source_digest(),
     }
@@ -82,14 +88,12 @@ MEMORY_NODES = 50_000
 _MEMORY: OrderedDict[str, NodeCloud] = OrderedDict()
 
 
-def memory_key(domain: dict, h: float, cells: str) -> str | None:
+def memory_key(domain: dict, h: float, cells: str, min_cells: int = 1) -> str | None:
     """The in-process key of one mesh, or None when it is not kept (a .geo domain, or
     PAREFG_CACHE=0)."""
     if user_cache.disabled() or not _outlined(domain):
         return None
-    return json.dumps(
-        {"domain": domain, "h": float(h), "cells": cells}, sort_keys=True, default=str
-    )
+    return json.dumps(_mesh_inputs(domain, h, cells, min_cells), sort_keys=True, default=str)
 
 
 def _copy(cloud: NodeCloud) -> NodeCloud:

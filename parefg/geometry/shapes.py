@@ -30,6 +30,21 @@ Z_VERTICES = (
 # Edge i runs from vertex i to i + 1: edge 0 is y = 0, edge 5 is y = 1.
 Z_EDGE_NAMES = ("bottom",) + ("sides",) * 4 + ("top",) + ("sides",) * 4
 Z_PART_NAMES = ("bottom", "top", "sides")  # the order a scene lists them in
+# The Z as five transfinite patches: its vertices, then the bottom's and the top's
+# splitting points (0.4, 0) and (0.6, 1).
+Z_PATCH_POINTS = (*Z_VERTICES, (0.4, 0.0), (0.6, 1.0))
+Z_PATCHES = (
+    (0, 10, 3, 9),  # bottom-left [0, 0.4] x [0, 0.25]
+    (10, 1, 2, 3),  # bottom-right [0.4, 1] x [0, 0.25]
+    (9, 3, 4, 8),  # the parallelogram (0, 0.25) (0.4, 0.25) (1, 0.75) (0.6, 0.75)
+    (7, 8, 11, 6),  # top-left [0, 0.6] x [0.75, 1]
+    (8, 4, 5, 11),  # top-right [0.6, 1] x [0.75, 1]
+)  # corners counter-clockwise, as indices into Z_PATCH_POINTS
+# gmsh's diagonal of the triangles (cells = "tri"): the parallelogram's cells are split
+# along their short diagonal (angles 40, 70, 70 degrees instead of 140, 20, 20).
+Z_ARRANGEMENTS = ("Left", "Left", "Right", "Left", "Left")
+# The outline through the splitting points: boundary curve i runs from point i to i + 1.
+Z_BOUNDARY = (0, 10, 1, 2, 3, 4, 5, 11, 6, 7, 8, 9)
 
 #: (vertices (n, 2), edge names (n,)) of a domain's outline; edge i runs from vertex i to i + 1
 Outline = tuple[Sequence, Sequence[str]]
@@ -39,6 +54,8 @@ Outline = tuple[Sequence, Sequence[str]]
 class GmshDomain:
     """What a builder made: the domain's surfaces and each part's curves (in part order).
 
+    ``structured``: every surface is transfinite and carries its own cell type (quads
+    recombined per surface, or triangles), so no recombination algorithm runs.
     ``lattice`` = (origin, step), both (2,), for a structured grid whose nodes
     are snapped to origin + integer * step (gmsh places them with ~1e-12 noise).
     """
@@ -46,6 +63,20 @@ class GmshDomain:
     surfaces: list[int]
     part_curves: dict[str, list[int]]
     lattice: tuple[np.ndarray, np.ndarray] | None = None
+    structured: bool = False
+
+
+@dataclass(frozen=True)
+class Patches:
+    """A domain meshed as conforming transfinite quadrilateral patches (the size estimate).
+
+    ``sides`` = (length of one pair of opposite sides, of the other) of each patch;
+    ``boundary`` = the lengths of the curves on the domain's boundary; a curve of length L
+    gets max(min_cells, ceil(L / h)) cells (``min_cells``: see :class:`Shape`).
+    """
+
+    sides: tuple[tuple[float, float], ...]
+    boundary: tuple[float, ...]
 
 
 @dataclass(frozen=True)
@@ -57,7 +88,10 @@ class Shape:
     name : str
         The value of ``[domain] shape``.
     build : callable
-        (gmsh, domain, h, cells) -> :class:`GmshDomain`: creates the gmsh geometry.
+        (gmsh, domain, h, cells, min_cells) -> :class:`GmshDomain`: creates the gmsh
+        geometry.  ``min_cells``: at least that many cells along each curve of a patched
+        domain (the MLS degree m: a degree-m basis needs m + 1 node rows across the Z's
+        0.25-thick strips); the other shapes ignore it.
     keys : tuple of str
         The keys of its ``[domain]`` table besides ``shape``, in reading order.
     outline : callable or None
@@ -70,6 +104,8 @@ class Shape:
     box : callable or None
         domain -> (origin, size) of a rectangle meshed as a structured grid; None for
         the other shapes.
+    patches : callable or None
+        domain -> :class:`Patches` of a domain meshed as transfinite patches ("z").
     """
 
     name: str
@@ -79,6 +115,7 @@ class Shape:
     check: Callable[[dict], tuple[str, str] | None] | None = None
     parts: tuple[str, ...] | None = None
     box: Callable[[dict], tuple[Sequence[float], Sequence[float]]] | None = None
+    patches: Callable[[dict], Patches] | None = None
 
 
 def _unit_box(domain: dict) -> tuple[Sequence[float], Sequence[float]]:
@@ -98,7 +135,7 @@ def _box_shape(name: str, box, keys: tuple[str, ...]) -> Shape:
         (x0, y0), (lx, ly) = box(domain)
         return [(x0, y0), (x0 + lx, y0), (x0 + lx, y0 + ly), (x0, y0 + ly)], BOX_PART_NAMES
 
-    def build(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
+    def build(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> GmshDomain:
         origin, size = box(domain)
         return _build_box(gmsh, origin, size, h, cells)
 
@@ -112,26 +149,83 @@ def _build_box(gmsh, origin, size, h: float, cells: str) -> GmshDomain:
         raise InputError(f"domain.size: both lengths must be > 0, got {[lx, ly]}")
     corners = [(x0, y0), (x0 + lx, y0), (x0 + lx, y0 + ly), (x0, y0 + ly)]
     surface, lines = _add_polygon_surface(gmsh, corners, h)
-    # Tolerance guards ceil against L / h landing a rounding error above an integer.
-    n_x, n_y = (max(1, math.ceil(length / h - 1e-9)) for length in (lx, ly))
+    n_x, n_y = _transfinite_cells(lx, h), _transfinite_cells(ly, h)
     for line, n_cells in zip(lines, (n_x, n_y, n_x, n_y), strict=True):
         gmsh.model.mesh.setTransfiniteCurve(line, n_cells + 1)
-    gmsh.model.mesh.setTransfiniteSurface(surface)
-    if cells == CellType.QUAD:
-        gmsh.model.mesh.setRecombine(2, surface)
+    _set_transfinite_surface(gmsh, surface, cells)
     parts = {name: [line] for name, line in zip(BOX_PART_NAMES, lines, strict=True)}
     lattice = (np.array([x0, y0], dtype=float), np.array([lx / n_x, ly / n_y]))
-    return GmshDomain([surface], parts, lattice)
+    return GmshDomain([surface], parts, lattice, structured=True)
+
+
+def _transfinite_cells(length: float, h: float, at_least: int = 1) -> int:
+    """Cells along a transfinite curve of this length: ceil(length / h), at least ``at_least``.
+
+    The tolerance guards ceil against length / h landing a rounding error above an integer.
+    """
+    return max(at_least, math.ceil(length / h - 1e-9))
+
+
+def _set_transfinite_surface(gmsh, surface: int, cells: str, arrangement: str = "Left") -> None:
+    """A transfinite surface of quads, or of triangles (each quad split along the diagonal
+    that gmsh's ``arrangement`` names)."""
+    gmsh.model.mesh.setTransfiniteSurface(surface, arrangement)
+    if cells == CellType.QUAD:
+        gmsh.model.mesh.setRecombine(2, surface)
 
 
 def _z_outline(domain: dict) -> Outline:
     return Z_VERTICES, Z_EDGE_NAMES
 
 
-def _build_z(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
-    """The Z-shaped polygon of the paper's second example."""
-    polygon = {"shape": "polygon", "vertices": Z_VERTICES, "edge_names": Z_EDGE_NAMES}
-    return _build_polygon(gmsh, polygon, h, cells)
+def _z_patches(domain: dict) -> Patches:
+    """The side lengths of the Z's patches and of its boundary curves."""
+
+    def length(start: int, end: int) -> float:
+        return math.dist(Z_PATCH_POINTS[start], Z_PATCH_POINTS[end])
+
+    sides = tuple((length(a, b), length(b, c)) for a, b, c, _ in Z_PATCHES)
+    ends = zip(Z_BOUNDARY, Z_BOUNDARY[1:] + Z_BOUNDARY[:1], strict=True)
+    return Patches(sides, tuple(length(a, b) for a, b in ends))
+
+
+def _build_z(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> GmshDomain:
+    """The Z-shaped polygon of the paper's second example as five transfinite patches.
+
+    The patches (:data:`Z_PATCHES`) share their common curves, so the mesh is conforming;
+    a curve of length L gets ceil(L / h) cells, at least ``min_cells``, which is the same
+    on opposite sides of a patch (they have equal lengths).  At h = 1/8 its strips have 2
+    cells across, 3 node rows: a cubic MLS basis there needs ``min_cells`` = 3.  Its parts
+    are those of the polygon (:data:`Z_EDGE_NAMES`), in the same order.
+    """
+    points = [gmsh.model.geo.addPoint(x, y, 0.0, h) for x, y in Z_PATCH_POINTS]
+    lines: dict[tuple[int, int], int] = {}  # (start, end) point indices -> line tag
+
+    def line(start: int, end: int) -> int:
+        """The signed tag of the line from point start to point end (made once)."""
+        if (end, start) in lines:
+            return -lines[(end, start)]
+        if (start, end) not in lines:
+            lines[(start, end)] = gmsh.model.geo.addLine(points[start], points[end])
+        return lines[(start, end)]
+
+    surfaces = []
+    for corners in Z_PATCHES:
+        loop = [line(a, b) for a, b in zip(corners, corners[1:] + corners[:1], strict=True)]
+        surfaces.append(gmsh.model.geo.addPlaneSurface([gmsh.model.geo.addCurveLoop(loop)]))
+    gmsh.model.geo.synchronize()
+    for (start, end), tag in lines.items():
+        length = math.dist(Z_PATCH_POINTS[start], Z_PATCH_POINTS[end])
+        gmsh.model.mesh.setTransfiniteCurve(tag, _transfinite_cells(length, h, min_cells) + 1)
+    for surface, arrangement in zip(surfaces, Z_ARRANGEMENTS, strict=True):
+        _set_transfinite_surface(gmsh, surface, cells, arrangement)
+    # Boundary curve -> the name of the outline edge it lies on (the split edges: 0 and 5).
+    edge_of_curve = (0, 0, 1, 2, 3, 4, 5, 5, 6, 7, 8, 9)
+    part_curves: dict[str, list[int]] = {}
+    ends = zip(Z_BOUNDARY, Z_BOUNDARY[1:] + Z_BOUNDARY[:1], strict=True)
+    for (start, end), edge in zip(ends, edge_of_curve, strict=True):
+        part_curves.setdefault(Z_EDGE_NAMES[edge], []).append(abs(line(start, end)))
+    return GmshDomain(surfaces, part_curves, structured=True)
 
 
 def _polygon_outline(domain: dict) -> Outline:
@@ -147,7 +241,7 @@ def _check_polygon(domain: dict) -> tuple[str, str] | None:
     return None if problem is None else ("vertices", problem)
 
 
-def _build_polygon(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
+def _build_polygon(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> GmshDomain:
     """Counter-clockwise polygon; edges with equal names form one part."""
     vertices = np.asarray(domain.get("vertices", ()), dtype=float)  # (n_vertices, 2)
     names = list(domain.get("edge_names", ()))
@@ -175,7 +269,7 @@ def _add_polygon_surface(gmsh, vertices, h: float):
     return surface, lines
 
 
-def _build_from_geo(gmsh, domain: dict, h: float, cells: str) -> GmshDomain:
+def _build_from_geo(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> GmshDomain:
     """A user .geo file, checked by :mod:`parefg.geometry.geo`; its physical curves are the parts.
 
     gmsh reads the checked text from a file in a private temporary directory, not
@@ -257,7 +351,7 @@ SHAPES: dict[str, Shape] = {
     for shape in (
         _box_shape("square", _unit_box, ()),
         _box_shape("rectangle", _given_box, ("size", "origin")),
-        Shape("z", _build_z, (), _z_outline, parts=Z_PART_NAMES),
+        Shape("z", _build_z, (), _z_outline, parts=Z_PART_NAMES, patches=_z_patches),
         Shape(
             "polygon", _build_polygon, ("vertices", "edge_names"), _polygon_outline, _check_polygon
         ),

@@ -301,6 +301,16 @@ def geo_domain(path: Path, parts: list[str]) -> list[str]:
     ]
 
 
+# The Z's outline as a user polygon, meshed unstructured (Frontal-Delaunay, Blossom for quads).
+Z_AS_POLYGON = [
+    'domain.shape="polygon"',
+    "domain.vertices=[[0, 0], [1, 0], [1, 0.25], [0.4, 0.25], [1, 0.75], [1, 1], [0, 1], "
+    "[0, 0.75], [0.6, 0.75], [0, 0.25]]",
+    'domain.edge_names=["bottom", "sides", "sides", "sides", "sides", "top", "sides", "sides", '
+    '"sides", "sides"]',
+]
+
+
 def actual_size(scene):
     """(nodes, cells, domain points, padded neighbours) of the run gmsh and MLS make."""
     cloud = build_node_cloud(COMM, scene.domain, scene.discretization.h, scene.discretization.cells)
@@ -324,8 +334,10 @@ def actual_size(scene):
         ("square", ["discretization.h=0.03125"], 0.0),  # a transfinite grid: exact counts
         ("square", ["discretization.h=0.03125", "discretization.cells='tri'"], 0.0),
         ("square", ['domain.shape="rectangle"', "domain.size=[2.0, 0.5]"], 0.0),
-        ("z", ["discretization.h=0.02"], 0.1),
-        ("z", ["discretization.h=0.02", "discretization.cells='tri'"], 0.1),
+        ("z", ["discretization.h=0.02"], 0.0),  # transfinite patches: exact counts too
+        ("z", ["discretization.h=0.02", "discretization.cells='tri'"], 0.0),
+        ("z", [*Z_AS_POLYGON, "discretization.h=0.02"], 0.1),  # unstructured: within 10 %
+        ("z", [*Z_AS_POLYGON, "discretization.h=0.02", "discretization.cells='tri'"], 0.1),
     ],
 )
 def test_estimate_follows_the_mesh(source, overrides, tolerance):
@@ -343,6 +355,20 @@ def test_estimate_follows_the_mesh(source, overrides, tolerance):
     # the estimate from the cloud agrees with the one from the scene
     from_cloud = cloud_size(scene, cloud)
     assert abs(memory_per_rank(from_cloud, 1) / memory_per_rank(size, 1) - 1) < 0.1
+
+
+@pytest.mark.parametrize("h", [0.3, 0.125, 0.1, 0.03125])
+@pytest.mark.parametrize("cells", ["quad", "tri"])
+@pytest.mark.parametrize("degree", [1, 3])
+def test_z_counts_are_exact(h, cells, degree):
+    """The Z's patch counts, also at a coarse h where its sides get m cells (min_cells)."""
+    sets = [f"discretization.h={h}", f"discretization.cells='{cells}'"]
+    scene = load_scene("z", [*sets, f"discretization.degree={degree}"])
+    size = estimate_scene(scene)
+    cloud = build_node_cloud(COMM, scene.domain, h, cells, min_cells=degree)
+    assert size.n_nodes == cloud.n_nodes
+    assert size.n_cells == len(cloud.quads) + len(cloud.triangles)
+    assert size.n_boundary_points == len(cloud.segments) * scene.discretization.quadrature
 
 
 @pytest.mark.parametrize("h, cells", [(0.0625, "quad"), (0.03125, "tri")])

@@ -167,14 +167,57 @@ def test_z_domain(zcloud):
     assert abs(lengths["bottom"] - 1) < 1e-12 and abs(lengths["top"] - 1) < 1e-12
     assert abs(lengths["sides"] - (perimeter - 2)) < 1e-12
     assert np.all((zcloud.spacing >= 0.3 * 0.05) & (zcloud.spacing <= 2 * 0.05))
-    assert len(zcloud.quads) > 4 * len(zcloud.triangles)  # recombination made mostly quads
     check_common(zcloud, lambda p, tol=1e-9: in_polygon(p, Z_POLYGON, tol))
+
+
+def z_patch_counts(h, min_cells=1):
+    """(n_nodes, n_cells) of the Z's five transfinite patches, from their side lengths.
+
+    Bottom-left 0.4 x 0.25, bottom-right 0.6 x 0.25, the parallelogram 0.4 x |(0.6, 0.5)|,
+    top-left 0.6 x 0.25, top-right 0.4 x 0.25; ceil(L / h) cells along a side, at least min_cells.
+    Four sides are shared (bottom-left with bottom-right and with the parallelogram, the
+    parallelogram with top-right, top-left with top-right), and their nodes counted once.
+    """
+    lengths = (0.25, 0.4, 0.6, np.hypot(0.6, 0.5))
+    n = {length: max(min_cells, int(np.ceil(length / h - 1e-9))) for length in lengths}
+    sides = [(0.4, 0.25), (0.6, 0.25), (0.4, np.hypot(0.6, 0.5)), (0.6, 0.25), (0.4, 0.25)]
+    cells = sum(n[a] * n[b] for a, b in sides)
+    nodes = sum((n[a] + 1) * (n[b] + 1) for a, b in sides)
+    shared = 2 * (n[0.25] + 1) + 2 * (n[0.4] + 1)
+    return nodes - shared, cells
+
+
+@pytest.mark.parametrize("h, min_cells", [(0.05, 1), (0.125, 1), (0.125, 3), (0.3, 1), (0.3, 2)])
+def test_z_is_five_conforming_transfinite_patches(h, min_cells):
+    """All quads (no recombination leftovers), as many as the patches hold, conforming
+    (check_common: a hanging node would leave an interior boundary segment); min_cells
+    (the MLS degree) raises the count of a coarse patch side, such as the 0.25-thick
+    strips' 2 cells at h = 1/8."""
+    cloud = build_node_cloud(COMM, {"shape": "z"}, h, min_cells=min_cells)
+    n_nodes, n_cells = z_patch_counts(h, min_cells)
+    assert cloud.coords.shape == (n_nodes, 2)
+    assert cloud.quads.shape == (n_cells, 4) and cloud.triangles.shape == (0, 3)
+    # The parallelogram's cells keep its angles: 90 degrees or its 39.8 / 140.2.
+    corner = cloud.coords[np.roll(cloud.quads, 1, axis=1)] - cloud.coords[cloud.quads]
+    other = cloud.coords[np.roll(cloud.quads, -1, axis=1)] - cloud.coords[cloud.quads]
+    cosine = np.sum(corner * other, axis=2) / np.linalg.norm(corner, axis=2)
+    cosine /= np.linalg.norm(other, axis=2)
+    slant = 0.6 / np.hypot(0.6, 0.5)  # cos of the parallelogram's acute angle
+    assert np.all(np.isclose(abs(cosine), 0, atol=1e-9) | np.isclose(abs(cosine), slant))
+    check_common(cloud, lambda p, tol=1e-9: in_polygon(p, Z_POLYGON, tol))
 
 
 @pytest.mark.parametrize("shape, polygon", [("square", SQUARE), ("z", Z_POLYGON)])
 def test_triangle_cells(shape, polygon):
     cloud = build_node_cloud(COMM, {"shape": shape}, 0.1, cells="tri")
     assert cloud.quads.shape == (0, 4) and len(cloud.triangles) > 0
+    if shape == "z":  # each transfinite quad split along its shorter diagonal
+        assert len(cloud.triangles) == 2 * z_patch_counts(0.1)[1]
+        sides = np.roll(cloud.coords[cloud.triangles], -1, axis=1) - cloud.coords[cloud.triangles]
+        lengths = np.linalg.norm(sides, axis=2)  # (n_triangles, 3)
+        squared = np.sort(lengths, axis=1) ** 2
+        # No obtuse angle: the longest side^2 <= the sum of the other two's (a 90 degree tie).
+        assert np.all(squared[:, 2] <= (squared[:, 0] + squared[:, 1]) * (1 + 1e-9))
     assert abs(cell_areas(cloud).sum() - shoelace(polygon)) < 1e-12
     check_common(cloud, lambda p, tol=1e-9: in_polygon(p, polygon, tol))
 
