@@ -104,9 +104,10 @@ tic = clock()
 import numba
 print("numba import", clock() - tic)
 from parefg.discretization import mls_kernels
+from parefg.discretization.neighbours import radius_classes
 radius = np.full(len(cloud.coords), 3.2 * 0.0625)
-cells = mls_kernels.build_cells(cloud.coords, radius.max())
-arguments = (cloud.coords, cloud.coords, radius, radius.max(), cells)
+cells = mls_kernels.build_cells(cloud.coords, *radius_classes(radius))
+arguments = (cloud.coords, cloud.coords, radius, cells)
 tic = clock()
 mls_kernels.count_neighbours(*arguments)
 print("numba: first cached kernel (initialization)", clock() - tic)
