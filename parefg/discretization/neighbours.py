@@ -12,10 +12,9 @@ within that class's own largest radius (its reach).  On a graded cloud (radii fr
 h/10 to h) a single search within the cloud's largest radius would scan ~(d_max/d_min)^2
 times the covering nodes; per class it scans at most ~9/pi CLASS_RATIO^2 times them.  A
 uniform cloud is one class.  ``"numba"`` walks one uniform cell list per class
-(:func:`parefg.discretization.mls_kernels.fill_neighbours`, after a pass that counts the
-covering nodes to size the lists); ``"numpy"`` queries one k-d tree per class (scipy's
-cKDTree, imported only for this backend) for the candidates within the class's reach
-and keeps those each node covers.
+(:func:`parefg.discretization.mls_kernels.neighbour_lists`, one scan per point);
+``"numpy"`` queries one k-d tree per class (scipy's cKDTree, imported only for this
+backend) for the candidates within the class's reach and keeps those each node covers.
 
 Nothing here is collective.
 """
@@ -64,20 +63,21 @@ class NeighbourSearch:
     def __init__(self, nodes: np.ndarray, support_radius: np.ndarray, backend: str):
         self.nodes, self.support_radius, self.backend = nodes, support_radius, backend
         self.classes, self.reach = radius_classes(support_radius)
+        self.coordinates = (nodes[:, 0].copy(), nodes[:, 1].copy())  # x, y: numpy's gathers
         self.cells = None  # the compiled search's cell lists, one per class
+        self.width = 32  # the compiled search's guess of the list length (grown as needed)
         # the numpy search's (members, reach, k-d tree) per class
         self.trees: list[tuple[np.ndarray, float, Any]] = []
         if backend == "numba":
             from parefg.discretization import mls_kernels  # imports numba: only for this backend
 
-            self.cells = mls_kernels.build_cells(nodes, self.classes, self.reach)
+            self.cells = mls_kernels.build_cells(nodes, support_radius, self.classes, self.reach)
         else:
             from scipy.spatial import cKDTree  # ~50 ms to import: only for this backend
 
             for c, reach in enumerate(self.reach):
                 members = np.flatnonzero(self.classes == c)
                 self.trees.append((members, float(reach), cKDTree(nodes[members])))
-            self.coordinates = (nodes[:, 0].copy(), nodes[:, 1].copy())  # x, y: fast gathers
 
     def find(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Padded lists of the nodes I with |x - x_I| < d_I, nearest first.
@@ -93,14 +93,16 @@ class NeighbourSearch:
         if self.backend == "numba":
             from parefg.discretization import mls_kernels
 
-            arguments = (points, self.nodes, self.support_radius, self.cells)
-            n_max = max(int(mls_kernels.count_neighbours(*arguments).max()), 1)
-            return mls_kernels.fill_neighbours(*arguments, n_max)
+            found = mls_kernels.neighbour_lists(points, self.cells, self.width)
+            self.width = found[0].shape[1]  # the next block's guess
+            return found
         # The covering nodes of each class, then all of them sorted by (distance, node).
         compact = len(self.trees) > 1
         found = [self._covering(points, *tree, compact) for tree in self.trees]
-        index = np.concatenate([i for i, _ in found], axis=1)  # (n_points, k)
-        distance = np.concatenate([d for _, d in found], axis=1)
+        index, distance = found[0]  # (n_points, k) each
+        if compact:
+            index = np.concatenate([i for i, _ in found], axis=1)
+            distance = np.concatenate([d for _, d in found], axis=1)
         order = np.lexsort((index, distance), axis=1)
         index = np.take_along_axis(index, order, axis=1)
         mask = index < len(self.nodes)
