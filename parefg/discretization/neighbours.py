@@ -96,49 +96,54 @@ class NeighbourSearch:
             found = mls_kernels.neighbour_lists(points, self.cells, self.width)
             self.width = found[0].shape[1]  # the next block's guess
             return found
-        # The covering nodes of each class, then all of them sorted by (distance, node).
-        compact = len(self.trees) > 1
-        found = [self._covering(points, *tree, compact) for tree in self.trees]
-        index, distance = found[0]  # (n_points, k) each
-        if compact:
-            index = np.concatenate([i for i, _ in found], axis=1)
-            distance = np.concatenate([d for _, d in found], axis=1)
-        order = np.lexsort((index, distance), axis=1)
-        index = np.take_along_axis(index, order, axis=1)
-        mask = index < len(self.nodes)
-        n_max = max(int(mask.sum(axis=1).max()), 1)
-        neighbours, mask = index[:, :n_max], mask[:, :n_max]
-        nearest = np.where(mask[:, :1], neighbours[:, :1], 0)
-        return np.where(mask, neighbours, nearest), mask
+        # Each point's covering nodes in one padded row, then sorted by (distance, node):
+        # the padding (n_nodes, inf) goes last.
+        neighbours = _sorted(*self._padded(points))  # (n_points, n_max)
+        mask = neighbours < len(self.nodes)
+        nearest = np.where(mask[:, :1], neighbours[:, :1], 0)  # (n_points, 1)
+        np.copyto(neighbours, nearest, where=~mask)
+        return neighbours, mask
 
-    def _covering(self, points, members, reach, tree, compact):
-        """The nodes of one class that cover each point, in no particular order.
-
-        ``compact``: drop the columns that cover no point (else the candidates' width).
+    def _padded(self, points):
+        """The covering nodes of each point in no particular order, padded to n_max.
 
         Returns
         -------
-        index : ndarray of int64, shape (n_points, k)
+        index : ndarray of int64, shape (n_points, n_max)
             Node numbers; n_nodes at the padding.
-        distance : ndarray, shape (n_points, k)
-            |x - x_I| rounded as sqrt(dx^2 + dy^2); inf at the padding.
+        distance : ndarray, shape (n_points, n_max)
+            |x - x_I|; inf at the padding.
         """
-        n_nodes = len(self.nodes)
+        n_nodes, n_points = len(self.nodes), len(points)
+        pairs = [self._covering(points, *tree) for tree in self.trees]
+        row, node, distance = pairs[0]
+        if len(pairs) > 1:  # each class's pairs come point by point: merge the classes
+            row, node, distance = (np.concatenate(part) for part in zip(*pairs, strict=True))
+            order = np.argsort(row, kind="stable")
+            node, distance = node[order], distance[order]
+        counts = np.bincount(row, minlength=n_points)  # (n_points,)
+        n_max = max(int(counts.max()), 1)
+        # The pairs, point by point, fill each row's first counts[q] entries.
+        filled = np.arange(n_max) < counts[:, None]  # (n_points, n_max)
+        index = np.full((n_points, n_max), n_nodes, dtype=np.int64)
+        padded = np.full((n_points, n_max), np.inf)
+        index[filled], padded[filled] = node, distance
+        return index, padded
+
+    def _covering(self, points, members, reach, tree):
+        """(point, node, distance) of the nodes of one class that cover the points, point
+        by point; the distance rounded as the numba kernel rounds it, sqrt(dx^2 + dy^2).
+        """
         candidate = self._candidates(points, tree, reach)  # (n_points, k); len(members): none
         found = candidate < len(members)
-        index = np.append(members, 0)[candidate]  # node 0 at the missing candidates
-        # The distance as the numba kernel rounds it: sqrt(dx^2 + dy^2).
-        dx = points[:, :1] - self.coordinates[0][index]  # (n_points, k)
-        dy = points[:, 1:] - self.coordinates[1][index]
+        counts = found.sum(axis=1)  # (n_points,)
+        node = members[candidate[found]]  # point by point
+        dx = np.repeat(points[:, 0], counts) - self.coordinates[0][node]
+        dy = np.repeat(points[:, 1], counts) - self.coordinates[1][node]
         distance = np.sqrt(dx * dx + dy * dy)
-        mask = found & (distance < self.support_radius[index])
-        if compact:  # the columns that hold a covering node of some point, in front
-            keep = max(int(mask.sum(axis=1).max()), 1)
-            order = np.argsort(~mask, axis=1, kind="stable")[:, :keep]
-            mask = np.take_along_axis(mask, order, axis=1)
-            index = np.take_along_axis(index, order, axis=1)
-            distance = np.take_along_axis(distance, order, axis=1)
-        return np.where(mask, index, n_nodes), np.where(mask, distance, np.inf)
+        covers = distance < self.support_radius[node]
+        row = np.repeat(np.arange(len(points)), counts)
+        return row[covers], node[covers], distance[covers]
 
     @staticmethod
     def _candidates(points, tree, reach):
@@ -161,6 +166,21 @@ class NeighbourSearch:
             index[full] = wider
             full[full] = wider[:, -1] < n
         return index
+
+
+def _sorted(index, distance):
+    """index with each row sorted by (distance, index), (n_points, n_max).
+
+    Only the rows not yet in that order are sorted: a k-d tree lists one class's
+    candidates nearest first, so with one class most rows are (all but ties).
+    """
+    later, earlier = distance[:, 1:], distance[:, :-1]
+    swapped = (later == earlier) & (index[:, 1:] < index[:, :-1])
+    rows = np.flatnonzero(((later < earlier) | swapped).any(axis=1))
+    if len(rows):
+        order = np.lexsort((index[rows], distance[rows]), axis=1)
+        index[rows] = np.take_along_axis(index[rows], order, axis=1)
+    return index
 
 
 def _query(tree, points, k, reach):
