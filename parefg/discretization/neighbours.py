@@ -115,15 +115,16 @@ class NeighbourSearch:
             |x - x_I|; inf at the padding.
         """
         n_nodes, n_points = len(self.nodes), len(points)
-        pairs = [self._covering(points, *tree) for tree in self.trees]
-        row, node, distance = pairs[0]
-        if len(pairs) > 1:  # each class's pairs come point by point: merge the classes
-            row, node, distance = (np.concatenate(part) for part in zip(*pairs, strict=True))
+        found = [self._covering(points, *tree) for tree in self.trees]
+        counts, node, distance = found[0]
+        if len(found) > 1:  # each class's nodes come point by point: merge the classes
+            row = np.concatenate([np.repeat(np.arange(n_points), c) for c, _, _ in found])
             order = np.argsort(row, kind="stable")
-            node, distance = node[order], distance[order]
-        counts = np.bincount(row, minlength=n_points)  # (n_points,)
+            node = np.concatenate([n for _, n, _ in found])[order]
+            distance = np.concatenate([d for _, _, d in found])[order]
+            counts = np.sum([c for c, _, _ in found], axis=0)
         n_max = max(int(counts.max()), 1)
-        # The pairs, point by point, fill each row's first counts[q] entries.
+        # The nodes, point by point, fill each row's first counts[q] entries.
         filled = np.arange(n_max) < counts[:, None]  # (n_points, n_max)
         index = np.full((n_points, n_max), n_nodes, dtype=np.int64)
         padded = np.full((n_points, n_max), np.inf)
@@ -131,19 +132,36 @@ class NeighbourSearch:
         return index, padded
 
     def _covering(self, points, members, reach, tree):
-        """(point, node, distance) of the nodes of one class that cover the points, point
-        by point; the distance rounded as the numba kernel rounds it, sqrt(dx^2 + dy^2).
+        """The nodes of one class that cover the points, point by point.
+
+        Returns
+        -------
+        counts : ndarray of int, shape (n_points,)
+            How many nodes of the class cover each point.
+        node, distance : ndarray, shape (counts.sum(),)
+            The nodes and |x - x_I|, rounded as the numba kernel rounds it, sqrt(dx^2 + dy^2).
         """
         candidate = self._candidates(points, tree, reach)  # (n_points, k); len(members): none
         found = candidate < len(members)
-        counts = found.sum(axis=1)  # (n_points,)
-        node = members[candidate[found]]  # point by point
-        dx = np.repeat(points[:, 0], counts) - self.coordinates[0][node]
-        dy = np.repeat(points[:, 1], counts) - self.coordinates[1][node]
-        distance = np.sqrt(dx * dx + dy * dy)
+        if found.mean() > 0.5:  # mostly found (one class): the distances of the whole array
+            row, node = None, np.append(members, 0)[candidate]  # (n_points, k); 0: none
+            x, y = points[:, :1], points[:, 1:]
+        else:  # mostly padding (several classes): the distances of the found candidates
+            row = np.repeat(np.arange(len(points)), found.sum(axis=1))
+            node = members[candidate[found]]
+            x, y = points[row, 0], points[row, 1]
+        dx, dy = x - self.coordinates[0][node], y - self.coordinates[1][node]
+        dx *= dx
+        dy *= dy
+        dx += dy
+        distance = np.sqrt(dx, out=dx)
         covers = distance < self.support_radius[node]
-        row = np.repeat(np.arange(len(points)), counts)
-        return row[covers], node[covers], distance[covers]
+        if row is None:
+            covers &= found
+            counts = covers.sum(axis=1)
+        else:
+            counts = np.bincount(row[covers], minlength=len(points))
+        return counts, node[covers], distance[covers]
 
     @staticmethod
     def _candidates(points, tree, reach):
@@ -171,12 +189,20 @@ class NeighbourSearch:
 def _sorted(index, distance):
     """index with each row sorted by (distance, index), (n_points, n_max).
 
-    Only the rows not yet in that order are sorted: a k-d tree lists one class's
-    candidates nearest first, so with one class most rows are (all but ties).
+    A k-d tree lists one class's candidates nearest first, ties in its own order: rows in
+    distance order only get their runs of equal distances sorted by node (one sort of
+    integer keys, run * (n_nodes + 1) + node), the others (several classes) a full sort.
     """
     later, earlier = distance[:, 1:], distance[:, :-1]
-    swapped = (later == earlier) & (index[:, 1:] < index[:, :-1])
-    rows = np.flatnonzero(((later < earlier) | swapped).any(axis=1))
+    unsorted = (later < earlier).any(axis=1)
+    tied = ((later == earlier) & (index[:, 1:] < index[:, :-1])).any(axis=1) & ~unsorted
+    rows = np.flatnonzero(tied)
+    if len(rows):
+        run = np.zeros((len(rows), index.shape[1]), dtype=np.int64)
+        np.cumsum(distance[rows, 1:] != distance[rows, :-1], axis=1, out=run[:, 1:])
+        base = index.max() + 1  # > every node number and the padding's
+        index[rows] = np.sort(run * base + index[rows], axis=1) % base
+    rows = np.flatnonzero(unsorted)
     if len(rows):
         order = np.lexsort((index[rows], distance[rows]), axis=1)
         index[rows] = np.take_along_axis(index[rows], order, axis=1)

@@ -88,6 +88,20 @@ def test_lists_are_the_definition_on_a_uniform_grid_with_ties():
         assert np.array_equal(found[0], expected[0]) and np.array_equal(found[1], expected[1])
 
 
+def test_lists_are_the_definition_on_two_interleaved_radius_classes():
+    # Every third grid node with a 2.5 times larger support: two classes over one region,
+    # each of which covers most points (merged lists with ties between the classes).
+    ticks = np.arange(17) / 16.0
+    nodes = np.column_stack([g.ravel() for g in np.meshgrid(ticks, ticks, indexing="ij")])
+    radius = np.where(np.arange(len(nodes)) % 3 == 0, 0.5, 0.2)
+    points = np.concatenate([np.random.default_rng(5).uniform(0.0, 1.0, (500, 2)), nodes])
+    assert len(radius_classes(radius)[1]) == 2
+    expected = brute_force(points, nodes, radius)
+    for backend in BACKENDS:
+        found = NeighbourSearch(nodes, radius, backend).find(points)
+        assert np.array_equal(found[0], expected[0]) and np.array_equal(found[1], expected[1])
+
+
 def test_radius_classes_span_less_than_the_ratio_and_reach_their_radii():
     _, radius, _ = graded_cloud()
     classes, reach = radius_classes(radius)
