@@ -51,29 +51,63 @@ weight_and_slope = _jit(weight_pair)
 # ----------------------------------------------------------------------------- neighbour search
 
 
-def build_cells(nodes, cell_size):
-    """Uniform cell list of the nodes: cell (i, j) holds nodes[cell_nodes[start[c]:start[c+1]]].
+def build_cells(nodes, radius, classes, reach):
+    """One uniform cell list per radius class, concatenated into flat arrays.
+
+    Class c holds the nodes ``classes == c`` (labels 0 .. n_classes - 1), all of support
+    radius below ``reach[c]``.  Its cells are at least that large, so the nodes of class c
+    that cover a point lie in the (at most) 3 x 3 cells around it: a point scans the area
+    of each class's own largest support, not that of the cloud's.  Cell k = i * shape[c, 1]
+    + j of class c holds the slots ``start[first_cell[c] + k]:start[first_cell[c] + k + 1]``
+    of the cell-ordered arrays, so a row of cells is one run of slots.
 
     Returns
     -------
-    origin : ndarray, shape (2,)
-    cell_size : float
-        At least ``cell_size``; enlarged so that there are at most ~4 cells per node.
-    shape : ndarray of int64, shape (2,)
+    origin : ndarray, shape (n_classes, 2)
+    cell_size : ndarray, shape (n_classes,)
+        At least the reach; enlarged so that there are at most ~4 cells per node.
+    reach : ndarray, shape (n_classes,)
+    shape : ndarray of int64, shape (n_classes, 2)
         Number of cells per direction.
+    first_cell : ndarray of int64, shape (n_classes + 1,)
     start : ndarray of int64, shape (n_cells + 1,)
     cell_nodes : ndarray of int64, shape (n_nodes,)
+        The node in each slot.
+    cell_coords, cell_radius : ndarray, shape (n_nodes, 2) and (n_nodes,)
+        Its coordinates and radius, in slot order (the scan reads them in sequence).
     """
+    n_classes = len(reach)
+    origin, cell_size = np.zeros((n_classes, 2)), np.zeros(n_classes)
+    shape = np.zeros((n_classes, 2), dtype=np.int64)
+    starts, members, offset = [], [], 0
+    for c in range(n_classes):  # a Python loop over the few classes, not over nodes
+        member = np.flatnonzero(classes == c)
+        origin[c], cell_size[c], shape[c], start, order = _uniform_cells(nodes[member], reach[c])
+        starts.append(offset + start[:-1])
+        members.append(member[order])
+        offset += len(member)
+    first_cell = np.zeros(n_classes + 1, dtype=np.int64)
+    first_cell[1:] = np.cumsum(shape[:, 0] * shape[:, 1])
+    start = np.concatenate([*starts, [offset]]).astype(np.int64)
+    cell_nodes = np.concatenate(members)
+    reach = np.ascontiguousarray(reach, dtype=float)
+    coords, radius = np.ascontiguousarray(nodes[cell_nodes]), radius[cell_nodes]
+    return origin, cell_size, reach, shape, first_cell, start, cell_nodes, coords, radius
+
+
+def _uniform_cells(nodes, cell_size):
+    """(origin, cell size, shape, start, order) of a uniform cell list of the nodes:
+    cell k = i * shape[1] + j holds nodes[order[start[k]:start[k + 1]]]."""
     origin = nodes.min(axis=0)
     extent = nodes.max(axis=0) - origin
     cell_size = max(cell_size, np.sqrt(extent[0] * extent[1] / (4.0 * len(nodes))))
     shape = (np.floor(extent / cell_size) + 1).astype(np.int64)  # (2,)
-    ij = np.minimum(((nodes - origin) / cell_size).astype(np.int64), shape - 1)  # (n_nodes, 2)
+    ij = np.minimum(((nodes - origin) / cell_size).astype(np.int64), shape - 1)  # (n, 2)
     cell = ij[:, 0] * shape[1] + ij[:, 1]
-    cell_nodes = np.argsort(cell, kind="stable").astype(np.int64)
+    order = np.argsort(cell, kind="stable").astype(np.int64)
     start = np.zeros(shape[0] * shape[1] + 1, dtype=np.int64)
     start[1:] = np.cumsum(np.bincount(cell, minlength=shape[0] * shape[1]))
-    return origin, float(cell_size), shape, start, cell_nodes
+    return origin, float(cell_size), shape, start, order
 
 
 @_jit
@@ -85,63 +119,80 @@ def _cell_range(x, reach, origin, cell_size, n_cells):
 
 
 @_jit
-def _covering_nodes(x, y, nodes, radius, reach, cells, found, distance):
-    """Write the nodes I with |x - x_I| < d_I into found/distance; return how many."""
-    origin, cell_size, shape, start, cell_nodes = cells
-    i_low, i_high = _cell_range(x, reach, origin[0], cell_size, shape[0])
-    j_low, j_high = _cell_range(y, reach, origin[1], cell_size, shape[1])
+def _covering_nodes(x, y, cells, found, distance):
+    """Write the nodes I with |x - x_I| < d_I into found/distance; return how many.
+
+    The nodes come class by class (unsorted); found/distance hold the first len(found).
+    """
+    origin, cell_size, reach, shape, first_cell, start, cell_nodes, coords, radius = cells
     count = 0
-    for i in range(i_low, i_high):
-        for j in range(j_low, j_high):
-            cell = i * shape[1] + j
-            for slot in range(start[cell], start[cell + 1]):
-                node = cell_nodes[slot]
-                # Same rounding as cKDTree's Euclidean distance: sqrt(dx^2 + dy^2).
-                dx, dy = x - nodes[node, 0], y - nodes[node, 1]
+    for c in range(len(reach)):
+        i_low, i_high = _cell_range(x, reach[c], origin[c, 0], cell_size[c], shape[c, 0])
+        j_low, j_high = _cell_range(y, reach[c], origin[c, 1], cell_size[c], shape[c, 1])
+        if j_low >= j_high:
+            continue
+        for i in range(i_low, i_high):
+            row = first_cell[c] + i * shape[c, 1]  # cells j_low .. j_high - 1: one slot run
+            for slot in range(start[row + j_low], start[row + j_high]):
+                # The distance as the numpy backend rounds it: sqrt(dx^2 + dy^2).
+                dx, dy = x - coords[slot, 0], y - coords[slot, 1]
                 d = np.sqrt(dx * dx + dy * dy)
-                if d < radius[node]:
+                if d < radius[slot]:
                     if count < len(found):
-                        found[count], distance[count] = node, d
+                        found[count], distance[count] = cell_nodes[slot], d
                     count += 1
     return count
 
 
 @_jit
-def count_neighbours(points, nodes, radius, reach, cells):
-    """Number of nodes covering each point, (n_points,)."""
-    counts = np.zeros(len(points), dtype=np.int64)
-    found, distance = np.empty(0, dtype=np.int64), np.empty(0)
-    for q in range(len(points)):
-        counts[q] = _covering_nodes(
-            points[q, 0], points[q, 1], nodes, radius, reach, cells, found, distance
-        )
-    return counts
+def _sort_by_distance(found, distance, count):
+    """Insertion sort of the first count entries by (distance, node): lists are short."""
+    for a in range(1, count):
+        node, d = found[a], distance[a]
+        b = a - 1
+        while b >= 0 and (distance[b] > d or (distance[b] == d and found[b] > node)):
+            found[b + 1], distance[b + 1] = found[b], distance[b]
+            b -= 1
+        found[b + 1], distance[b + 1] = node, d
 
 
 @_jit
-def fill_neighbours(points, nodes, radius, reach, cells, n_max):
-    """Padded covering-node lists, nearest first (ties by node index).
+def neighbour_lists(points, cells, width):
+    """Padded covering-node lists, nearest first (ties by node index), in one scan.
 
-    Returns neighbours (n_points, n_max) int64, padded with the nearest node, and the
-    mask (n_points, n_max) bool.
+    Each point's sorted list goes to a flat buffer with room for ``width`` nodes per
+    point (a guess: the buffer doubles when full), then into the padded arrays.
+
+    Returns neighbours (n_points, n_max) int64, padded with the nearest node (0 where no
+    node covers the point), and the mask (n_points, n_max) bool.
     """
-    neighbours = np.zeros((len(points), n_max), dtype=np.int64)
-    mask = np.zeros((len(points), n_max), dtype=np.bool_)
-    found, distance = np.empty(n_max, dtype=np.int64), np.empty(n_max)
-    for q in range(len(points)):
-        count = _covering_nodes(
-            points[q, 0], points[q, 1], nodes, radius, reach, cells, found, distance
-        )
-        # Insertion sort by (distance, node): lists are short (< 100).
-        for a in range(1, count):
-            node, d = found[a], distance[a]
-            b = a - 1
-            while b >= 0 and (distance[b] > d or (distance[b] == d and found[b] > node)):
-                found[b + 1], distance[b + 1] = found[b], distance[b]
-                b -= 1
-            found[b + 1], distance[b + 1] = node, d
+    n_points = len(points)
+    flat = np.empty(max(n_points * width, 16), dtype=np.int64)
+    end = np.zeros(n_points + 1, dtype=np.int64)  # point q's list: flat[end[q]:end[q + 1]]
+    found, distance = np.empty(max(width, 16), dtype=np.int64), np.empty(max(width, 16))
+    for q in range(n_points):
+        x, y = points[q, 0], points[q, 1]
+        count = _covering_nodes(x, y, cells, found, distance)
+        if count > len(found):  # the scratch was short: scan again with room for all
+            found, distance = np.empty(2 * count, dtype=np.int64), np.empty(2 * count)
+            count = _covering_nodes(x, y, cells, found, distance)
+        _sort_by_distance(found, distance, count)
+        if end[q] + count > len(flat):
+            wider = np.empty(2 * len(flat) + count, dtype=np.int64)
+            wider[: end[q]] = flat[: end[q]]
+            flat = wider
+        flat[end[q] : end[q] + count] = found[:count]
+        end[q + 1] = end[q] + count
+    n_max = 1
+    for q in range(n_points):
+        n_max = max(n_max, end[q + 1] - end[q])
+    neighbours = np.zeros((n_points, n_max), dtype=np.int64)
+    mask = np.zeros((n_points, n_max), dtype=np.bool_)
+    for q in range(n_points):
+        count = end[q + 1] - end[q]
+        nearest = flat[end[q]] if count > 0 else 0
         for a in range(n_max):
-            neighbours[q, a] = found[a] if a < count else (found[0] if count > 0 else 0)
+            neighbours[q, a] = flat[end[q] + a] if a < count else nearest
             mask[q, a] = a < count
     return neighbours, mask
 

@@ -1,18 +1,51 @@
 """Neighbour search of the MLS shape functions: the nodes whose support covers a point.
 
 For each evaluation point x the neighbours are the nodes I with |x - x_I| < d_I (the
-node's own support radius), listed nearest first (ties by node index) and padded to a
-common width.  Two backends give identical lists (see
-:data:`parefg.discretization.mls.BACKENDS`): ``"numba"`` walks a uniform cell list
-(:func:`parefg.discretization.mls_kernels.fill_neighbours`, after a pass that counts the
-covering nodes to size the lists); ``"numpy"`` queries a k-d tree
-(scipy's cKDTree, imported only for this backend) for the candidates within the
-largest radius and keeps those each node covers.
+node's own support radius, the distance rounded as sqrt(dx^2 + dy^2)), listed nearest
+first (ties by node index) and padded to a common width with the nearest node (node 0
+where no node covers x).  Two backends give identical lists (see
+:data:`parefg.discretization.mls.BACKENDS`).
+
+The nodes are split into radius classes (:func:`radius_classes`), each spanning less
+than a factor :data:`CLASS_RATIO` of radii, and every point is searched in every class
+within that class's own largest radius (its reach).  On a graded cloud (radii from
+h/10 to h) a single search within the cloud's largest radius would scan ~(d_max/d_min)^2
+times the covering nodes; per class it scans at most ~9/pi CLASS_RATIO^2 times them.  A
+uniform cloud is one class.  ``"numba"`` walks one uniform cell list per class
+(:func:`parefg.discretization.mls_kernels.neighbour_lists`, one scan per point);
+``"numpy"`` queries one k-d tree per class (scipy's cKDTree, imported only for this
+backend) for the candidates within the class's reach and keeps those each node covers.
 
 Nothing here is collective.
 """
 
+from typing import Any
+
 import numpy as np
+
+#: Largest ratio of support radii within one radius class.
+CLASS_RATIO = 2.0
+# A class's reach is its largest radius widened by 16 ulps: every node whose rounded
+# distance is below its radius then lies within the reach exactly, wherever it rounds.
+REACH_WIDENING = 1.0 + 16.0 * np.finfo(float).eps
+
+
+def radius_classes(support_radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Radius classes of the nodes: d_I in [d_min r^c, d_min r^(c+1)), r = CLASS_RATIO.
+
+    Returns
+    -------
+    classes : ndarray of int64, shape (n_nodes,)
+        The class of each node, numbered 0 .. n_classes - 1 without gaps.
+    reach : ndarray, shape (n_classes,)
+        Each class's largest radius, times :data:`REACH_WIDENING`.
+    """
+    level = np.floor(np.log2(support_radius / support_radius.min()) / np.log2(CLASS_RATIO))
+    _, classes = np.unique(level, return_inverse=True)
+    classes = classes.reshape(-1).astype(np.int64)
+    reach = np.zeros(int(classes.max()) + 1)
+    np.maximum.at(reach, classes, support_radius)
+    return classes, reach * REACH_WIDENING
 
 
 class NeighbourSearch:
@@ -29,17 +62,22 @@ class NeighbourSearch:
 
     def __init__(self, nodes: np.ndarray, support_radius: np.ndarray, backend: str):
         self.nodes, self.support_radius, self.backend = nodes, support_radius, backend
-        self.max_radius = float(support_radius.max())
-        self.cells = None  # the compiled search's cell list
-        self.tree = None  # the numpy search's k-d tree
+        self.classes, self.reach = radius_classes(support_radius)
+        self.coordinates = (nodes[:, 0].copy(), nodes[:, 1].copy())  # x, y: numpy's gathers
+        self.cells = None  # the compiled search's cell lists, one per class
+        self.width = 32  # the compiled search's guess of the list length (grown as needed)
+        # the numpy search's (members, reach, k-d tree) per class
+        self.trees: list[tuple[np.ndarray, float, Any]] = []
         if backend == "numba":
             from parefg.discretization import mls_kernels  # imports numba: only for this backend
 
-            self.cells = mls_kernels.build_cells(nodes, self.max_radius)
+            self.cells = mls_kernels.build_cells(nodes, support_radius, self.classes, self.reach)
         else:
             from scipy.spatial import cKDTree  # ~50 ms to import: only for this backend
 
-            self.tree = cKDTree(nodes)
+            for c, reach in enumerate(self.reach):
+                members = np.flatnonzero(self.classes == c)
+                self.trees.append((members, float(reach), cKDTree(nodes[members])))
 
     def find(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Padded lists of the nodes I with |x - x_I| < d_I, nearest first.
@@ -47,7 +85,7 @@ class NeighbourSearch:
         Returns
         -------
         neighbours : ndarray of int64, shape (n_points, n_max)
-            Padding entries hold the point's nearest node.
+            Padding entries hold the point's nearest node (0 if no node covers it).
         mask : ndarray of bool, shape (n_points, n_max)
         """
         if len(points) == 0:
@@ -55,51 +93,122 @@ class NeighbourSearch:
         if self.backend == "numba":
             from parefg.discretization import mls_kernels
 
-            arguments = (points, self.nodes, self.support_radius, self.max_radius, self.cells)
-            n_max = max(int(mls_kernels.count_neighbours(*arguments).max()), 1)
-            return mls_kernels.fill_neighbours(*arguments, n_max)
-        # The largest radius bounds every support: candidates within it ...
-        distance, index = self._candidates(points)
-        found = index < len(self.nodes)
-        index = np.where(found, index, 0).astype(np.int64)
-        # ... then keep the nodes whose own support covers the point, in front.
-        mask = found & (distance < self.support_radius[index])
-        order = np.argsort(~mask, axis=1, kind="stable")
-        n_max = max(int(mask.sum(axis=1).max()), 1)
-        neighbours = np.take_along_axis(index, order, axis=1)[:, :n_max]
-        mask = np.take_along_axis(mask, order, axis=1)[:, :n_max]
-        return np.where(mask, neighbours, neighbours[:, :1]), mask
+            found = mls_kernels.neighbour_lists(points, self.cells, self.width)
+            self.width = found[0].shape[1]  # the next block's guess
+            return found
+        # Each point's covering nodes in one padded row, then sorted by (distance, node):
+        # the padding (n_nodes, inf) goes last.
+        neighbours = _sorted(*self._padded(points))  # (n_points, n_max)
+        mask = neighbours < len(self.nodes)
+        nearest = np.where(mask[:, :1], neighbours[:, :1], 0)  # (n_points, 1)
+        np.copyto(neighbours, nearest, where=~mask)
+        return neighbours, mask
 
-    def _candidates(self, points):
-        """Nodes within the largest support radius of each point, nearest first.
-
-        The padding width k is guessed from a sample of points and doubled for the
-        rows that come back full, so no row loses a node.
+    def _padded(self, points):
+        """The covering nodes of each point in no particular order, padded to n_max.
 
         Returns
         -------
-        distance : ndarray, shape (n_points, k); inf at missing entries
-        index : ndarray of int, shape (n_points, k); n_nodes at missing entries
+        index : ndarray of int64, shape (n_points, n_max)
+            Node numbers; n_nodes at the padding.
+        distance : ndarray, shape (n_points, n_max)
+            |x - x_I|; inf at the padding.
         """
-        n_nodes = len(self.nodes)
-        sample = points[:: max(1, len(points) // 256)]
-        counts = self.tree.query_ball_point(sample, r=self.max_radius, return_length=True)
-        k = min(n_nodes, int(1.25 * np.max(counts)) + 1)
-        distance, index = self._query(points, k)  # (n_points, k)
-        full = index[:, -1] < n_nodes
-        while full.any() and k < n_nodes:
-            k = min(n_nodes, 2 * k)
-            wider_distance, wider_index = self._query(points[full], k)
-            distance = np.pad(
-                distance, ((0, 0), (0, k - distance.shape[1])), constant_values=np.inf
-            )
-            index = np.pad(index, ((0, 0), (0, k - index.shape[1])), constant_values=n_nodes)
-            distance[full], index[full] = wider_distance, wider_index
-            full[full] = wider_index[:, -1] < n_nodes
-        return distance, index
+        n_nodes, n_points = len(self.nodes), len(points)
+        found = [self._covering(points, *tree) for tree in self.trees]
+        counts, node, distance = found[0]
+        if len(found) > 1:  # each class's nodes come point by point: merge the classes
+            row = np.concatenate([np.repeat(np.arange(n_points), c) for c, _, _ in found])
+            order = np.argsort(row, kind="stable")
+            node = np.concatenate([n for _, n, _ in found])[order]
+            distance = np.concatenate([d for _, _, d in found])[order]
+            counts = np.sum([c for c, _, _ in found], axis=0)
+        n_max = max(int(counts.max()), 1)
+        # The nodes, point by point, fill each row's first counts[q] entries.
+        filled = np.arange(n_max) < counts[:, None]  # (n_points, n_max)
+        index = np.full((n_points, n_max), n_nodes, dtype=np.int64)
+        padded = np.full((n_points, n_max), np.inf)
+        index[filled], padded[filled] = node, distance
+        return index, padded
 
-    def _query(self, points, k):
-        """k nearest nodes within the largest support radius, (n_points, k) each."""
-        return self.tree.query(
-            points, k=list(range(1, k + 1)), distance_upper_bound=self.max_radius
-        )
+    def _covering(self, points, members, reach, tree):
+        """The nodes of one class that cover the points, point by point.
+
+        Returns
+        -------
+        counts : ndarray of int, shape (n_points,)
+            How many nodes of the class cover each point.
+        node, distance : ndarray, shape (counts.sum(),)
+            The nodes and |x - x_I|, rounded as the numba kernel rounds it, sqrt(dx^2 + dy^2).
+        """
+        candidate = self._candidates(points, tree, reach)  # (n_points, k); len(members): none
+        found = candidate < len(members)
+        if found.mean() > 0.5:  # mostly found (one class): the distances of the whole array
+            row, node = None, np.append(members, 0)[candidate]  # (n_points, k); 0: none
+            x, y = points[:, :1], points[:, 1:]
+        else:  # mostly padding (several classes): the distances of the found candidates
+            row = np.repeat(np.arange(len(points)), found.sum(axis=1))
+            node = members[candidate[found]]
+            x, y = points[row, 0], points[row, 1]
+        dx, dy = x - self.coordinates[0][node], y - self.coordinates[1][node]
+        dx *= dx
+        dy *= dy
+        dx += dy
+        distance = np.sqrt(dx, out=dx)
+        covers = distance < self.support_radius[node]
+        if row is None:
+            covers &= found
+            counts = covers.sum(axis=1)
+        else:
+            counts = np.bincount(row[covers], minlength=len(points))
+        return counts, node[covers], distance[covers]
+
+    @staticmethod
+    def _candidates(points, tree, reach):
+        """The tree's nodes within ``reach`` of each point, (n_points, k); tree.n at the
+        missing entries.
+
+        The padding width k is guessed from a sample of points and doubled for the
+        rows that come back full, so no row loses a node.
+        """
+        n = tree.n
+        sample = points[:: max(1, len(points) // 256)]
+        counts = tree.query_ball_point(sample, r=reach, return_length=True)
+        k = min(n, int(1.25 * np.max(counts)) + 1)
+        index = _query(tree, points, k, reach)  # (n_points, k)
+        full = index[:, -1] < n
+        while full.any() and k < n:
+            k = min(n, 2 * k)
+            wider = _query(tree, points[full], k, reach)
+            index = np.pad(index, ((0, 0), (0, k - index.shape[1])), constant_values=n)
+            index[full] = wider
+            full[full] = wider[:, -1] < n
+        return index
+
+
+def _sorted(index, distance):
+    """index with each row sorted by (distance, index), (n_points, n_max).
+
+    A k-d tree lists one class's candidates nearest first, ties in its own order: rows in
+    distance order only get their runs of equal distances sorted by node (one sort of
+    integer keys, run * (n_nodes + 1) + node), the others (several classes) a full sort.
+    """
+    later, earlier = distance[:, 1:], distance[:, :-1]
+    unsorted = (later < earlier).any(axis=1)
+    tied = ((later == earlier) & (index[:, 1:] < index[:, :-1])).any(axis=1) & ~unsorted
+    rows = np.flatnonzero(tied)
+    if len(rows):
+        run = np.zeros((len(rows), index.shape[1]), dtype=np.int64)
+        np.cumsum(distance[rows, 1:] != distance[rows, :-1], axis=1, out=run[:, 1:])
+        base = index.max() + 1  # > every node number and the padding's
+        index[rows] = np.sort(run * base + index[rows], axis=1) % base
+    rows = np.flatnonzero(unsorted)
+    if len(rows):
+        order = np.lexsort((index[rows], distance[rows]), axis=1)
+        index[rows] = np.take_along_axis(index[rows], order, axis=1)
+    return index
+
+
+def _query(tree, points, k, reach):
+    """Indices of the k nearest tree nodes within reach, (n_points, k); tree.n if fewer."""
+    return tree.query(points, k=list(range(1, k + 1)), distance_upper_bound=reach)[1]

@@ -104,14 +104,15 @@ tic = clock()
 import numba
 print("numba import", clock() - tic)
 from parefg.discretization import mls_kernels
+from parefg.discretization.neighbours import radius_classes
 radius = np.full(len(cloud.coords), 3.2 * 0.0625)
-cells = mls_kernels.build_cells(cloud.coords, radius.max())
-arguments = (cloud.coords, cloud.coords, radius, radius.max(), cells)
+cells = mls_kernels.build_cells(cloud.coords, radius, *radius_classes(radius))
 tic = clock()
-mls_kernels.count_neighbours(*arguments)
+neighbours, mask = mls_kernels.neighbour_lists(cloud.coords, cells, 64)
 print("numba: first cached kernel (initialization)", clock() - tic)
 tic = clock()
-mls_kernels.fill_neighbours(*arguments, 64)
+size = mls_kernels.basis_size(2)
+mls_kernels.shape_functions(cloud.coords, cloud.coords, radius, 0, size, neighbours, mask, True)
 print("numba: next cached kernel", clock() - tic)
 """
 
