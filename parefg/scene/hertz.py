@@ -13,8 +13,8 @@ holds for a << R; its error is O(a / R).
 The scene (:func:`hertz_scene`): ``meshes/half_disk.geo`` (R = 1, centre (0, 1): the
 curved bottom touches y = 0 at the origin, nodes graded to h/10 within 0.15 of it), a
 static load step pushing the flat top y = 1 down by ``delta`` (Nitsche, the top
-clamped: u = (0, -delta)), frictionless contact (penalty or Nitsche) on the arc within 30 degrees of
-the bottom.  The load P is not prescribed but measured: the vertical resultant of the
+clamped: u = (0, -delta)), frictionless contact (penalty or Nitsche) on the arc within
+30 degrees of the bottom.  The load P is not prescribed but measured: the vertical resultant of the
 contact pressure, checked against the stress resultant through the body
 (:func:`stress_resultant`).  The Hertz values are those of the measured P.
 

@@ -42,7 +42,6 @@ import numpy as np
 from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
-from parefg.timestepping.linear_solver import DEFAULT_SOLVER_METHOD
 from parefg.timestepping.step_solver import ContactStepSolver
 
 #: outer (bound) iterations per step before the step fails; -coulomb_max_it overrides
@@ -56,15 +55,9 @@ class CoulombStepSolver(ContactStepSolver):
     :attr:`outer_residuals` the Coulomb residual after each of them.
     """
 
-    def __init__(
-        self,
-        comm,
-        a_const: PETSc.Mat,
-        law,
-        method: str = DEFAULT_SOLVER_METHOD,
-        symmetric: bool = True,
-    ):
-        super().__init__(comm, a_const, law, method, symmetric)
+    def __init__(self, *args, **kwargs) -> None:
+        """As :class:`ContactStepSolver`, plus the outer iteration's limit and counters."""
+        super().__init__(*args, **kwargs)
         self.max_outer_option = f"-{self.snes.getOptionsPrefix() or ''}coulomb_max_it"
         self.max_outer = self._read_max_outer()
         self.outer_iterations = 0
