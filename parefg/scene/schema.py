@@ -88,6 +88,11 @@ OUTPUT_FRAMES = 50  # default time series: about this many output steps per run
 # dilation s per MLS degree m; measured: at m = 2, s = 3.2 cuts the H1 error at h = 1/32
 # five-fold against s = 2.6 (README, accuracy section)
 DEFAULT_SUPPORT = {1: 2.0, 2: 3.2, 3: 4.0}
+# ... and with solver.method = "iterative": wide supports make the system ill-conditioned
+# (CG + GAMG at m = 2: 413 iterations at h = 1/16 with s = 3.2, growing with 1 / h; 16, 17,
+# 19 from h = 1/16 to 1/64 with s = 2.4; at m = 3 no support below 3.2 is admissible, and
+# 3.2 takes 4-5x fewer than 4.0; README, performance: iterative solver).
+ITERATIVE_SUPPORT = {1: 2.0, 2: 2.4, 3: 3.2}
 # Gauss points per cell direction by MLS degree m, on the structured grid of a box shape
 # and on the unstructured cells of the others (the Z's re-entrant corner).  MLS shape
 # functions are rational and their supports cut the cells, so Gauss rules converge
@@ -103,7 +108,15 @@ MAX_QUADRATURE = 16
 # How K is integrated: "gauss" (the MLS gradients at the Gauss points) or "vci" (their
 # variationally consistent correction, parefg.discretization.consistent_gradients).
 INTEGRATIONS = ("gauss", "vci")
-DEFAULT_INTEGRATION = "gauss"
+# Per degree, with the direct solver.  At m = 3 Gauss integration of the rational MLS
+# gradients limits the error (static, h = 1/32: Z H1 1.69e-5 with 12 x 12 points, rate
+# 1.2; square L2 2.55e-8), VCI restores the theory's rates (Z H1 1.10e-6, square L2
+# 5.2e-9) with fewer points: its error is the same from 7 x 7 to 12 x 12 points (square,
+# Z, h = 1/8 ... 1/32), so it runs with 7 (grid) / 8 (unstructured cells) and costs less
+# than Gauss's 9 / 12.  VCI's K is nonsymmetric: the iterative solver (CG) keeps "gauss".
+DEFAULT_INTEGRATION = {1: "gauss", 2: "gauss", 3: "vci"}
+VCI_QUADRATURE = {3: 7}
+VCI_UNSTRUCTURED_QUADRATURE = {3: 8}
 STEP_TOLERANCE = 1e-9  # relative distance of T / dt from an integer
 MAX_STEPS = 10**9  # beyond this T / dt is a typo, and is no longer checked as an integer
 
@@ -151,17 +164,25 @@ def _read_domain(table: Table, source_dir: Path) -> list[str]:
     return domain_part_names(table.out)
 
 
-def _read_discretization(table: Table, shape: str) -> None:
-    """h, m, weight, support and quadrature; the quadrature's default depends on ``shape``."""
+def _read_discretization(table: Table, shape: str, solver: dict) -> None:
+    """h, m, weight, support, integration and quadrature.  The defaults of support and
+    integration depend on the linear solver (CG wants a well-conditioned, symmetric K),
+    the quadrature's on the integration and on ``shape`` (a grid or unstructured cells)."""
     table.take("h", as_number, 0.1, POSITIVE)
     degree = table.take("degree", as_integer, 1, between(1, 3))
     table.take("weight", one_of(*WEIGHTS), DEFAULT_WEIGHT)
-    table.take("support", as_number, DEFAULT_SUPPORT[degree], (lambda v: v > 1, "must be > 1"))
+    iterative = solver["method"] == "iterative"
+    support = (ITERATIVE_SUPPORT if iterative else DEFAULT_SUPPORT)[degree]
+    table.take("support", as_number, support, (lambda v: v > 1, "must be > 1"))
+    integration = "gauss" if wants_symmetric(solver) else DEFAULT_INTEGRATION[degree]
+    integration = table.take("integration", one_of(*INTEGRATIONS), integration)
     structured = SHAPES[shape].box is not None
-    points = (DEFAULT_QUADRATURE if structured else UNSTRUCTURED_QUADRATURE)[degree]
+    if integration == "vci" and degree in VCI_QUADRATURE:
+        points = (VCI_QUADRATURE if structured else VCI_UNSTRUCTURED_QUADRATURE)[degree]
+    else:
+        points = (DEFAULT_QUADRATURE if structured else UNSTRUCTURED_QUADRATURE)[degree]
     table.take("quadrature", as_integer, points, between(1, MAX_QUADRATURE))
     table.take("cells", one_of(*CELL_TYPES), CELL_TYPES[0])
-    table.take("integration", one_of(*INTEGRATIONS), DEFAULT_INTEGRATION)
     # Absent stays absent (no jitter): the effective scene of an unjittered run is unchanged.
     table.take("jitter", as_number, None, between(0.0, MAX_JITTER))
     table.take("seed", as_integer, None, (lambda v: 0 <= v < 2**63, "must be in 0..2**63 - 1"))
@@ -335,7 +356,8 @@ def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, 
         return result
 
     part_names = section("domain", _read_domain, source_dir)
-    section("discretization", _read_discretization, params["domain"]["shape"])
+    solver = _read_solver(where, raw.get("solver", {}))  # the discretization's defaults need it
+    section("discretization", _read_discretization, params["domain"]["shape"], solver)
     section("material", _read_material)
     section("time", _read_time)
     E = elastic_constants(params["material"])[0]
@@ -346,17 +368,25 @@ def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, 
     if has_exact:
         section("exact", lambda table: table.take("u", as_vector))
     section("output", _read_output, params["time"])
-    params["solver"] = _read_solver(where, raw.get("solver", {}))
+    params["solver"] = solver
     _check_integration_solver(where, params["discretization"], params["solver"])
     return params, part_names
 
 
+def wants_symmetric(solver: dict) -> bool:
+    """Whether the linear solver (``[solver]`` as read) needs a symmetric K: CG + GAMG, or
+    PETSc options naming CG, MINRES or a symmetric factorization."""
+    symmetric_pc = solver.get("pc_type") in ("cholesky", "icc")
+    return (
+        solver["method"] == "iterative"
+        or symmetric_pc
+        or solver.get("ksp_type") in ("cg", "minres")
+    )
+
+
 def _check_integration_solver(where: str, discretization: dict, solver: dict) -> None:
     """VCI makes K nonsymmetric: CG and the symmetric factorizations would be wrong."""
-    if discretization["integration"] != "vci":
-        return
-    symmetric = solver["method"] == "iterative" or solver.get("pc_type") in ("cholesky", "icc")
-    if symmetric or solver.get("ksp_type") in ("cg", "minres"):
+    if discretization["integration"] == "vci" and wants_symmetric(solver):
         raise InputError(
             f'{where}: discretization.integration = "vci" makes the stiffness nonsymmetric; '
             'use the direct solver with LU (solver.method = "direct", no cholesky/icc/cg)'

@@ -106,6 +106,46 @@ def test_effective_params_contain_defaults(square):
     assert json.loads(json.dumps(params)) == params
 
 
+@pytest.mark.parametrize(
+    "scene_name, overrides, expected",
+    [
+        # (support, integration, quadrature); the direct solver: VCI at m = 3 with fewer points
+        ("square", ["discretization.degree=3"], (4.0, "vci", 7)),
+        ("z", ["discretization.degree=3"], (4.0, "vci", 8)),
+        ("z", ["discretization.degree=2"], (3.2, "gauss", 10)),
+        # CG + GAMG: the better conditioned supports, and Gauss (VCI's K is nonsymmetric)
+        ("square", ["solver.method=iterative"], (2.4, "gauss", 8)),
+        ("square", ["solver.method=iterative", "discretization.degree=3"], (3.2, "gauss", 9)),
+        ("z", ["solver.method=iterative", "discretization.degree=1"], (2.0, "gauss", 6)),
+        # PETSc options that need a symmetric K choose Gauss too; explicit keys win
+        ("square", ["discretization.degree=3", "solver.pc_type=cholesky"], (4.0, "gauss", 9)),
+        (
+            "square",
+            [
+                "solver.method=iterative",
+                "discretization.support=3.0",
+                "discretization.quadrature=5",
+            ],
+            (3.0, "gauss", 5),
+        ),
+        (
+            "square",
+            ["discretization.degree=3", "discretization.integration=gauss"],
+            (4.0, "gauss", 9),
+        ),
+    ],
+)
+def test_discretization_defaults_follow_degree_and_solver(scene_name, overrides, expected):
+    disc = load_scene(scene_name, overrides).params["discretization"]
+    assert (disc["support"], disc["integration"], disc["quadrature"]) == expected
+
+
+def test_vci_with_a_symmetric_solver_is_refused():
+    for solver in ("solver.method=iterative", "solver.ksp_type=cg"):
+        with pytest.raises(InputError, match="nonsymmetric"):
+            load_scene("square", ["discretization.integration=vci", solver])
+
+
 def test_empty_scene_is_all_defaults(tmp_path):
     scene = load_scene(write(tmp_path, "# nothing\n", "empty.toml"))
     assert scene.name == "empty" and scene.source_dir == tmp_path.resolve()
