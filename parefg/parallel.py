@@ -154,22 +154,86 @@ def owned_rows(comm, local: sp.spmatrix, row_ranges: np.ndarray) -> sp.csr_matri
 
     Returns
     -------
-    (n_owned_rows, n_cols) CSR matrix of the summed owned rows, duplicates added, explicit
-    zeros kept (they carry sparsity patterns reserved for later values).
+    (n_owned_rows, n_cols) canonical CSR matrix of the summed owned rows (sorted columns,
+    duplicates added), explicit zeros kept (they carry sparsity patterns reserved for
+    later values).
     """
     local = sp.csr_matrix(local)
     local.sum_duplicates()  # canonical CSR: sorted columns, duplicates added, zeros kept
-    start, stop = row_ranges[comm.rank], row_ranges[comm.rank + 1]
+    rank = comm.rank
+    start, stop = int(row_ranges[rank]), int(row_ranges[rank + 1])
     if comm.size == 1:
         return local
-    # CSR rows come grouped by owner already: rank r's entries are one contiguous slice
-    counts = np.diff(local.indptr[row_ranges])  # (comm.size,)
-    entry_rows = np.repeat(np.arange(local.shape[0]), np.diff(local.indptr))  # (nnz,)
-    rows = _alltoallv(comm, entry_rows.astype(np.int64), counts)
-    cols = _alltoallv(comm, local.indices.astype(np.int64), counts)
-    data = _alltoallv(comm, local.data.astype(np.float64), counts)
-    owned = sp.coo_matrix((data, (rows - start, cols)), shape=(stop - start, local.shape[1]))
-    return owned.tocsr()  # sums duplicates, keeps explicit zeros
+    # CSR rows come grouped by owner: rank r's entries are one contiguous slice.  This
+    # rank's own slice stays where it is; only the others' (the rows of nodes across the
+    # partition's interface) travel, and are merged into the few rows they touch.
+    bounds = local.indptr[row_ranges]  # (comm.size + 1,)
+    counts = np.diff(bounds)
+    counts[rank] = 0
+    low, high = int(bounds[rank]), int(bounds[rank + 1])
+    row_counts = np.diff(local.indptr)
+    send_rows = np.concatenate(
+        [
+            np.repeat(np.arange(start), row_counts[:start]),
+            np.repeat(np.arange(stop, local.shape[0]), row_counts[stop:]),
+        ]
+    )
+    send_cols = np.concatenate([local.indices[:low], local.indices[high:]])
+    send_data = np.concatenate([local.data[:low], local.data[high:]])
+    rows = _alltoallv(comm, send_rows.astype(np.int64), counts) - start
+    cols = _alltoallv(comm, send_cols.astype(np.int64), counts)
+    data = _alltoallv(comm, send_data.astype(np.float64), counts)
+    own = sp.csr_matrix(
+        (local.data[low:high], local.indices[low:high], local.indptr[start : stop + 1] - low),
+        shape=(stop - start, local.shape[1]),
+    )
+    own.has_canonical_format = True  # a row slice of a canonical matrix
+    if len(rows) == 0:
+        return own
+    return _merge_rows(own, rows, cols, data)
+
+
+def _merge_rows(own: sp.csr_matrix, rows, cols, data) -> sp.csr_matrix:
+    """``own`` (canonical CSR) plus the entries (rows, cols, data), explicit zeros kept.
+
+    Only the rows the entries touch are re-summed (through COO, which adds duplicates and
+    keeps zeros); the others are copied to their new offsets in one vectorized move.
+    """
+    touched = np.unique(rows)
+    compact = np.searchsorted(touched, rows)
+    counts = np.diff(own.indptr)
+    # own entries of the touched rows, then the received ones, as one small COO
+    first, last = own.indptr[touched], own.indptr[touched + 1]
+    taken = np.repeat(np.arange(len(touched)), last - first)
+    offsets = np.arange(len(taken)) - np.repeat(
+        np.cumsum(last - first) - (last - first), last - first
+    )
+    entry = first[taken] + offsets
+    small = sp.coo_matrix(
+        (
+            np.concatenate([own.data[entry], data]),
+            (np.concatenate([taken, compact]), np.concatenate([own.indices[entry], cols])),
+        ),
+        shape=(len(touched), own.shape[1]),
+    ).tocsr()  # sums duplicates, sorts columns, keeps explicit zeros
+    new_counts = counts.copy()
+    new_counts[touched] = np.diff(small.indptr)
+    indptr = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(new_counts, out=indptr[1:])
+    indices = np.empty(indptr[-1], dtype=own.indices.dtype)
+    values = np.empty(indptr[-1], dtype=own.data.dtype)
+    kept_row = np.ones(len(counts), dtype=bool)
+    kept_row[touched] = False
+    kept = np.repeat(kept_row, counts)
+    shift = np.repeat(indptr[:-1] - own.indptr[:-1], counts)
+    destination = (np.arange(own.nnz) + shift)[kept]
+    indices[destination], values[destination] = own.indices[kept], own.data[kept]
+    small_rows = np.repeat(np.arange(len(touched)), np.diff(small.indptr))
+    destination = indptr[touched][small_rows] + np.arange(small.nnz) - small.indptr[small_rows]
+    indices[destination], values[destination] = small.indices, small.data
+    merged = sp.csr_matrix((values, indices, indptr), shape=own.shape)
+    merged.has_canonical_format = True
+    return merged
 
 
 def with_pattern(matrix: sp.csr_matrix, pattern: sp.csr_matrix) -> sp.csr_matrix:

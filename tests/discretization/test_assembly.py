@@ -251,6 +251,37 @@ def test_grouping_does_not_change_the_gram_matrix(case):
     assert np.abs(grouped - pointwise).max() <= TOLERANCE * np.abs(pointwise).max()
 
 
+def test_owned_rows_matches_the_dense_sum_and_the_union_of_patterns(comm):
+    """Random contributions (rows anywhere, duplicates, explicit zeros, rows left empty):
+    the owned rows are the dense sum over ranks, their pattern the union of every rank's
+    entries (zeros included), in canonical CSR."""
+    n_rows, n_cols = 40, 30
+    row_ranges = np.array(
+        [0, *sorted(np.random.default_rng(0).integers(0, n_rows, comm.size - 1)), n_rows]
+    )
+    rng = np.random.default_rng(comm.rank + 7)
+    n = 150
+    rows, cols = rng.integers(0, n_rows, n), rng.integers(0, n_cols, n)
+    data = np.where(rng.random(n) < 0.2, 0.0, rng.standard_normal(n))
+    local = sp.coo_matrix((data, (rows, cols)), shape=(n_rows, n_cols))
+    owned = owned_rows(comm, local, row_ranges)
+    everything = comm.allgather((rows, cols, data))
+    start, stop = row_ranges[comm.rank], row_ranges[comm.rank + 1]
+    dense = np.zeros((n_rows, n_cols))
+    pattern = np.zeros((n_rows, n_cols), dtype=bool)
+    for r, c, d in everything:
+        np.add.at(dense, (r, c), d)
+        pattern[r, c] = True
+    np.testing.assert_allclose(owned.toarray(), dense[start:stop], rtol=1e-14, atol=1e-14)
+    found = np.zeros((stop - start, n_cols), dtype=bool)
+    found[np.repeat(np.arange(stop - start), np.diff(owned.indptr)), owned.indices] = True
+    np.testing.assert_array_equal(found, pattern[start:stop])
+    assert owned.nnz == pattern[start:stop].sum()  # no duplicates
+    for row in range(stop - start):
+        columns = owned.indices[owned.indptr[row] : owned.indptr[row + 1]]
+        assert np.all(np.diff(columns) > 0)  # sorted
+
+
 def test_owned_rows_sums_contributions_and_keeps_zeros(comm):
     """Every rank adds rank + 1 on the diagonal and an explicit zero at (i, 0)."""
     n_rows = 6
