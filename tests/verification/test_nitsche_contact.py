@@ -85,8 +85,9 @@ def test_nitsche_contact_conserves_energy_through_an_impact():
 def test_energy_at_degree_3_stays_bounded_with_the_nonsymmetric_stiffness():
     """m = 3 (VCI, its default: K has a skew part of ~1e-5 |K|), the same bar and impact:
     the energy is no longer conserved to the solver tolerance but to the skew part (bounded:
-    K's spectrum is real, tests/discretization/test_consistent_gradients.py).  Measured max |E / E_0 - 1|: 3.7e-6 over T = 2.56 (129 steps), 3.6e-5
-    over T = 25.6 (1281 steps, oscillating in sign); Gauss integration 6.8e-9."""
+    K's spectrum is real, tests/discretization/test_consistent_gradients.py).  Measured
+    max |E / E_0 - 1|: 3.7e-6 over T = 2.56 (129 steps), 3.6e-5 over T = 25.6 (1281
+    steps, oscillating in sign); Gauss integration 6.8e-9."""
     sim, _ = run("impact", [*BAR, "discretization.degree=3"])
     assert sim.scene.params["discretization"]["integration"] == "vci"
     energy = np.array([stored_energy(row) for row in sim.history])
