@@ -13,7 +13,7 @@ def run(comm, args) -> int:
 
     # --solver is solver.method given last: it wins over the scene and --set
     method = [] if args.solver is None else [f"solver.method={args.solver}"]
-    scene = load_scene(args.scene, [*args.set, *method])
+    scene = load_scene(args.scene, [*args.set, *method], step_solver_options())
     run_scene(
         comm,
         scene,
@@ -25,6 +25,14 @@ def run(comm, args) -> int:
         max_memory=args.max_memory,
     )
     return 0
+
+
+def step_solver_options() -> dict[str, str]:
+    """The command line's -ksp_type / -pc_type (PETSc is initialized with them)."""
+    from petsc4py import PETSc
+
+    given = PETSc.Options().getAll()
+    return {name: str(given[name]) for name in ("ksp_type", "pc_type") if name in given}
 
 
 def sweep(comm, args) -> int:

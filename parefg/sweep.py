@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from parefg.commands import step_solver_options
 from parefg.discretization.budget import check_problem_size
 from parefg.errors import InputError
 from parefg.run import create_output_dir, plan_output_dir, remove_empty_dirs, run_scene
@@ -79,7 +80,10 @@ def run_cases(
     # validate every case before running any (bad input: exit 2, nothing run)
     # the timed cases write their final step only (a --set output.every=N still wins)
     sets = [SWEEP_OUTPUT, *sets]
-    scenes = [load_scene(scene_source, [*sets, *_overrides(axes, case)]) for case in cases]
+    command_line = step_solver_options()
+    scenes = [
+        load_scene(scene_source, [*sets, *_overrides(axes, case)], command_line) for case in cases
+    ]
     for scene in scenes:
         check_problem_size(comm, scene, max_memory)
     out_dir = plan_output_dir(comm, f"sweep-{scenes[0].name}", out)

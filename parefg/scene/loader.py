@@ -52,7 +52,9 @@ def builtin_scenes() -> dict[str, str]:
     return scenes
 
 
-def load_scene(source: str, overrides: Sequence[str] = ()) -> Scene:
+def load_scene(
+    source: str, overrides: Sequence[str] = (), command_line: dict[str, str] | None = None
+) -> Scene:
     """Read, override, validate and complete a scene.
 
     Not collective (every rank may call it; the result is the same).
@@ -64,6 +66,10 @@ def load_scene(source: str, overrides: Sequence[str] = ()) -> Scene:
     overrides
         ``"section.key=value"`` strings, e.g. ``"discretization.h=0.05"`` or
         ``"boundary.bottom.friction=0"``; value is read as a TOML value, else as a string.
+    command_line
+        The step solver's PETSc options from the command line (``{"ksp_type": "cg"}``):
+        like the scene's ``[solver]`` options, they decide whether the defaults must
+        suit a symmetric solver (parefg.scene.schema.wants_symmetric).
 
     Raises
     ------
@@ -75,7 +81,7 @@ def load_scene(source: str, overrides: Sequence[str] = ()) -> Scene:
     where = f"scene {name}"
     for text in overrides:
         _apply_override(raw, text, where)
-    params, part_names = validate(where, raw, name, source_dir)
+    params, part_names = validate(where, raw, name, source_dir, command_line)
     return _build(where, params, part_names, source_dir)
 
 

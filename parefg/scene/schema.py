@@ -332,11 +332,15 @@ def plain_name(text: str) -> str:
     return plain or "scene"
 
 
-def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, list[str]]:
+def validate(
+    where: str, raw: dict, name: str, source_dir: Path, command_line: dict | None = None
+) -> tuple[dict, list[str]]:
     """The effective params (defaults filled) and the domain's boundary part names.
 
     A top-level ``name`` names the default output directory runs/<name>, so it
     must be plain (PLAIN_NAME): "/abs/path" or "../../x" would point elsewhere.
+    ``command_line``: the step solver's PETSc options given on the command line
+    (``ksp_type``, ``pc_type``), which choose the defaults a symmetric solver needs.
     """
     for key, value in raw.items():
         if key in TOP_LEVEL_KEYS and not isinstance(value, str):
@@ -357,7 +361,10 @@ def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, 
 
     part_names = section("domain", _read_domain, source_dir)
     solver = _read_solver(where, raw.get("solver", {}))  # the discretization's defaults need it
-    section("discretization", _read_discretization, params["domain"]["shape"], solver)
+    # the command line's PETSc options win over the scene's (e.g. -ksp_type cg): they
+    # decide, with it, whether the linear solver needs a symmetric K
+    linear_solver = {**solver, **(command_line or {})}
+    section("discretization", _read_discretization, params["domain"]["shape"], linear_solver)
     section("material", _read_material)
     section("time", _read_time)
     E = elastic_constants(params["material"])[0]
@@ -369,7 +376,7 @@ def validate(where: str, raw: dict, name: str, source_dir: Path) -> tuple[dict, 
         section("exact", lambda table: table.take("u", as_vector))
     section("output", _read_output, params["time"])
     params["solver"] = solver
-    _check_integration_solver(where, params["discretization"], params["solver"])
+    _check_integration_solver(where, params["discretization"], linear_solver)
     return params, part_names
 
 

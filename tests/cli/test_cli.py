@@ -150,3 +150,22 @@ def test_bare_parefg_under_mpirun_runs_the_default_scene(tmp_path):
     summary = json.loads((tmp_path / "runs" / "square" / "summary.json").read_text())
     assert summary["scene"] == "square" and summary["mpi_ranks"] == 2
     assert summary["errors"]["h1_rel"] < 1e-2
+
+
+def test_command_line_symmetric_solver_chooses_gauss_at_degree_3(tmp_path):
+    """The command line's -pc_type cholesky / -ksp_type cg decide the defaults like the
+    scene's [solver] options: at m = 3 the run integrates with Gauss (VCI's nonsymmetric
+    K would be solved by Cholesky or CG otherwise), and an explicit vci is refused."""
+    base = ["run", "square", *QUICK, "--set", "discretization.degree=3", "--quiet"]
+    result = run_parefg([*base, "--out", str(tmp_path / "cholesky"), "-pc_type", "cholesky"])
+    assert result.returncode == 0, result.stderr
+    params = json.loads((tmp_path / "cholesky" / "summary.json").read_text())["params"]
+    assert params["discretization"]["integration"] == "gauss"
+    plain = run_parefg([*base, "--out", str(tmp_path / "lu")])
+    assert plain.returncode == 0, plain.stderr
+    params = json.loads((tmp_path / "lu" / "summary.json").read_text())["params"]
+    assert params["discretization"]["integration"] == "vci"
+    explicit = [*base, "--set", "discretization.integration=vci", "-ksp_type", "cg"]
+    refused = run_parefg([*explicit, "--out", str(tmp_path / "refused")])
+    assert_bad_input(refused, ["nonsymmetric"])
+    assert not (tmp_path / "refused").exists()
