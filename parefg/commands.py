@@ -8,6 +8,7 @@ from parefg import __version__
 
 
 def run(comm, args) -> int:
+    from parefg.petsc_options import step_solver_options
     from parefg.run import run_scene
     from parefg.scene.loader import load_scene
 
@@ -25,14 +26,6 @@ def run(comm, args) -> int:
         max_memory=args.max_memory,
     )
     return 0
-
-
-def step_solver_options() -> dict[str, str]:
-    """The command line's -ksp_type / -pc_type (PETSc is initialized with them)."""
-    from petsc4py import PETSc
-
-    given = PETSc.Options().getAll()
-    return {name: str(given[name]) for name in ("ksp_type", "pc_type") if name in given}
 
 
 def sweep(comm, args) -> int:

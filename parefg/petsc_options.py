@@ -145,6 +145,15 @@ def describe_petsc_error(error: PETSc.Error, what: str, scene: dict[str, str]) -
     return f"{culprit}rejected while setting up {what} ({detail})"
 
 
+def step_solver_options() -> dict[str, str]:
+    """The step solver's -ksp_type, -pc_type, -sub_pc_type and -mat_type in PETSc's
+    options database (the command line, PETSC_OPTIONS), which choose the discretization's
+    symmetric-solver defaults (parefg.scene.schema.wants_symmetric).  Not collective."""
+    given = PETSc.Options().getAll()
+    names = ("ksp_type", "pc_type", "sub_pc_type", "mat_type")
+    return {name: str(given[name]) for name in names if name in given}
+
+
 @contextmanager
 def petsc_configuration(comm, what: str, scene: dict[str, str]):
     """Run a block that configures PETSc objects; a PETSc error becomes InputError.  Collective.

@@ -21,7 +21,12 @@ from parefg.io.monitors import Progress, StopRequest
 from parefg.io.observers import CheckpointObserver, ResultsObserver
 from parefg.io.output import ResultWriter
 from parefg.parallel import call_on_root
-from parefg.petsc_options import petsc_configuration, scene_options, unused_options_warning
+from parefg.petsc_options import (
+    petsc_configuration,
+    scene_options,
+    step_solver_options,
+    unused_options_warning,
+)
 from parefg.profiling import factorization_stats, peak_rss_kib, phase, start_logging
 from parefg.scene.loader import load_scene
 from parefg.timestepping.loop import Callback, Observer, time_loop
@@ -149,7 +154,7 @@ def prepare(
     ``sim.history`` (long runs).  The solvers read the scene's [solver] options as in a
     run (:func:`build_simulation`).  :func:`run_scene` is the whole run with its output.
     """
-    scene = load_scene(source, list(overrides))
+    scene = load_scene(source, list(overrides), step_solver_options())
     return build_simulation(comm, scene, build_discretization(comm, scene), keep_history)
 
 

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from parefg.commands import step_solver_options
 from parefg.discretization.budget import check_problem_size
 from parefg.errors import InputError
+from parefg.petsc_options import step_solver_options
 from parefg.run import create_output_dir, plan_output_dir, remove_empty_dirs, run_scene
 from parefg.scene.loader import load_scene
 

@@ -16,7 +16,9 @@ A checkpoint is valid only for the scene that wrote it.  It carries the effectiv
 (``params_json``) and its fingerprint, a SHA-256 of the params that determine the
 discretization and the time integration: every section except ``time.T`` (a restart may
 extend a run), ``[output]`` and ``[solver]`` (they change what is written and how each
-step is solved, not the solution), and the scene's name and description.  A restart
+step is solved, not the solution; the solver does choose some discretization defaults,
+e.g. the iterative method's supports, and those are in the fingerprinted
+``[discretization]``), and the scene's name and description.  A restart
 with a different fingerprint is refused, naming the differing keys; so is a checkpoint
 at a step the scene does not have, with other node coordinates (the node cloud of a
 changed .geo file), or with an array of the wrong shape or type.
@@ -279,9 +281,14 @@ def _check_scene(where: str, stored: dict, current: dict) -> None:
         for key in differing[:4]
     )
     more = f" and {len(differing) - 4} more" if len(differing) > 4 else ""
+    hint = ""
+    if any(key.startswith("discretization.") for key in differing):
+        # the defaults of support, integration and quadrature follow the degree and the
+        # linear solver: a restart with another solver changes them unless they are set
+        hint = " or set the checkpoint's discretization values explicitly (--set)"
     raise InputError(
         f"{where}: written by a different scene: {shown}{more}; restart with the scene "
-        "that wrote it (only time.T, [output] and [solver] may change)"
+        f"that wrote it (only time.T, [output] and [solver] may change){hint}"
     )
 
 

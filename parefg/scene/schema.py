@@ -46,7 +46,12 @@ from parefg.scene.table import (
     one_of,
     show,
 )
-from parefg.timestepping.linear_solver import DEFAULT_SOLVER_METHOD, SOLVER_METHODS
+from parefg.timestepping.linear_solver import (
+    DEFAULT_SOLVER_METHOD,
+    SOLVER_METHODS,
+    SYMMETRIC_KSPS,
+    SYMMETRIC_PCS,
+)
 from parefg.timestepping.schemes import (
     SCHEMES,
     GeneralizedAlphaScheme,
@@ -90,9 +95,12 @@ OUTPUT_FRAMES = 50  # default time series: about this many output steps per run
 DEFAULT_SUPPORT = {1: 2.0, 2: 3.2, 3: 4.0}
 # ... and with solver.method = "iterative": wide supports make the system ill-conditioned
 # (CG + GAMG at m = 2: 413 iterations at h = 1/16 with s = 3.2, growing with 1 / h; 16, 17,
-# 19 from h = 1/16 to 1/64 with s = 2.4; at m = 3 no support below 3.2 is admissible, and
-# 3.2 takes 4-5x fewer than 4.0; README, performance: iterative solver).
+# 19 from h = 1/16 to 1/64 with s = 2.4; README, performance: iterative solver).  At m = 3
+# 3.2 takes 4-5x fewer than 4.0 on the square's grid, but is not admissible on coarse
+# unstructured cells (the Z at h = 1/8, graded .geo clouds: a moment matrix with 9-12
+# neighbours for 10 basis functions), so other shapes keep 4.0 there.
 ITERATIVE_SUPPORT = {1: 2.0, 2: 2.4, 3: 3.2}
+ITERATIVE_UNSTRUCTURED_SUPPORT = {1: 2.0, 2: 2.4, 3: 4.0}
 # Gauss points per cell direction by MLS degree m, on the structured grid of a box shape
 # and on the unstructured cells of the others (the Z's re-entrant corner).  MLS shape
 # functions are rational and their supports cut the cells, so Gauss rules converge
@@ -171,12 +179,14 @@ def _read_discretization(table: Table, shape: str, solver: dict) -> None:
     table.take("h", as_number, 0.1, POSITIVE)
     degree = table.take("degree", as_integer, 1, between(1, 3))
     table.take("weight", one_of(*WEIGHTS), DEFAULT_WEIGHT)
-    iterative = solver["method"] == "iterative"
-    support = (ITERATIVE_SUPPORT if iterative else DEFAULT_SUPPORT)[degree]
+    structured = SHAPES[shape].box is not None
+    if solver["method"] == "iterative":
+        support = (ITERATIVE_SUPPORT if structured else ITERATIVE_UNSTRUCTURED_SUPPORT)[degree]
+    else:
+        support = DEFAULT_SUPPORT[degree]
     table.take("support", as_number, support, (lambda v: v > 1, "must be > 1"))
     integration = "gauss" if wants_symmetric(solver) else DEFAULT_INTEGRATION[degree]
     integration = table.take("integration", one_of(*INTEGRATIONS), integration)
-    structured = SHAPES[shape].box is not None
     if integration == "vci" and degree in VCI_QUADRATURE:
         points = (VCI_QUADRATURE if structured else VCI_UNSTRUCTURED_QUADRATURE)[degree]
     else:
@@ -381,13 +391,15 @@ def validate(
 
 
 def wants_symmetric(solver: dict) -> bool:
-    """Whether the linear solver (``[solver]`` as read) needs a symmetric K: CG + GAMG, or
-    PETSc options naming CG, MINRES or a symmetric factorization."""
-    symmetric_pc = solver.get("pc_type") in ("cholesky", "icc")
+    """Whether the linear solver needs a symmetric K: CG + GAMG, or PETSc options (of the
+    scene's [solver] table, or of the command line over them) naming a Krylov method or a
+    (sub-)preconditioner that assumes symmetry, or a symmetric matrix format."""
+    symmetric_pc = {solver.get("pc_type"), solver.get("sub_pc_type")} & set(SYMMETRIC_PCS)
     return (
         solver["method"] == "iterative"
-        or symmetric_pc
-        or solver.get("ksp_type") in ("cg", "minres")
+        or solver.get("ksp_type") in SYMMETRIC_KSPS
+        or bool(symmetric_pc)
+        or "sbaij" in str(solver.get("mat_type", ""))
     )
 
 
@@ -395,6 +407,7 @@ def _check_integration_solver(where: str, discretization: dict, solver: dict) ->
     """VCI makes K nonsymmetric: CG and the symmetric factorizations would be wrong."""
     if discretization["integration"] == "vci" and wants_symmetric(solver):
         raise InputError(
-            f'{where}: discretization.integration = "vci" makes the stiffness nonsymmetric; '
-            'use the direct solver with LU (solver.method = "direct", no cholesky/icc/cg)'
+            f'{where}: discretization.integration = "vci" makes the stiffness nonsymmetric, '
+            "but the linear solver (solver.method, [solver] or the command line's -ksp_type /"
+            ' -pc_type) assumes symmetry; use the direct solver with LU or integration = "gauss"'
         )

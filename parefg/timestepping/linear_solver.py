@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from petsc4py import PETSc
 
-from parefg.errors import SolverError
+from parefg.errors import InputError, SolverError
 from parefg.parallel import set_from_options
 from parefg.petsc_options import EXACT_FACTORIZATIONS
 
@@ -91,6 +91,32 @@ SOLVER_METHODS = {
     "iterative": SolverMethod("iterative", step=_AMG, mass=_MASS, scaled_tolerance=True),
 }
 DEFAULT_SOLVER_METHOD = "direct"
+
+
+# PETSc's Krylov methods and preconditioners that assume a symmetric operator: with VCI's
+# nonsymmetric K they would solve another system (a Cholesky factor reads one triangle).
+SYMMETRIC_KSPS = (
+    "cg", "cr", "minres", "symmlq", "pipecg", "pipecr", "groppcg", "pipecgrr", "fcg",
+    "pipefcg", "stcg", "nash", "gltr", "qcg",
+)  # fmt: skip
+SYMMETRIC_PCS = ("cholesky", "icc")
+
+
+def check_symmetric_use(ksp: PETSc.KSP, symmetric: bool) -> None:
+    """InputError if the configured KSP or PC needs a symmetric operator and it is not.
+
+    The scene loader already chooses Gauss integration for such solvers
+    (parefg.scene.schema.wants_symmetric); this catches the rest (options set in-process,
+    an options file).  Call after setFromOptions.  Not collective: every rank has the
+    same options.
+    """
+    kind, pc = ksp.getType(), ksp.getPC().getType()
+    if not symmetric and (kind in SYMMETRIC_KSPS or pc in SYMMETRIC_PCS):
+        raise InputError(
+            f"the step solver (KSP {kind}, PC {pc}) needs a symmetric matrix, but "
+            'discretization.integration = "vci" makes the stiffness nonsymmetric: use LU '
+            '(the direct solver\'s default) or set discretization.integration = "gauss"'
+        )
 
 
 def configure_linear_solver(ksp: PETSc.KSP, symmetric: bool = True) -> None:
@@ -206,6 +232,7 @@ class LinearStepSolver:
         # the step's options are the unprefixed ones (-ksp_type, as for the contact step)
         set_from_options(self.ksp, "", SOLVER_METHODS[method].step)
         self.scaled_tolerance = scaled_ksp_tolerance(SOLVER_METHODS[method])
+        check_symmetric_use(self.ksp, symmetric)
         check_factorization(self.ksp, a_const)
         self.exact = is_exact(self.ksp)
         options = PETSc.Options()

@@ -60,6 +60,7 @@ from parefg.timestepping.linear_solver import (
     INEXACT_HINT,
     SOLVER_METHODS,
     check_factorization,
+    check_symmetric_use,
     configure_linear_solver,
     is_exact,
     ksp_failure,
@@ -161,6 +162,7 @@ class ContactStepSolver:
         # through the options database while this SNES reads it, and removed after
         # (and the solver method's KSP options, read by the SNES's KSP)
         set_from_options(snes, "", {"snes_linesearch_type": "basic", **self.method.step})
+        check_symmetric_use(snes.getKSP(), self.symmetric)
         check_factorization(snes.getKSP(), self.jacobian)
         return snes
 

@@ -252,7 +252,7 @@ def test_grouping_does_not_change_the_gram_matrix(case):
 
 
 def test_owned_rows_matches_the_dense_sum_and_the_union_of_patterns(comm):
-    """Random contributions (rows anywhere, duplicates, explicit zeros, rows left empty):
+    """Random contributions (rows anywhere, duplicates, explicit zeros):
     the owned rows are the dense sum over ranks, their pattern the union of every rank's
     entries (zeros included), in canonical CSR."""
     n_rows, n_cols = 40, 30
@@ -280,6 +280,32 @@ def test_owned_rows_matches_the_dense_sum_and_the_union_of_patterns(comm):
     for row in range(stop - start):
         columns = owned.indices[owned.indptr[row] : owned.indptr[row + 1]]
         assert np.all(np.diff(columns) > 0)  # sorted
+
+
+@pytest.mark.parametrize("layout", ["own rows only", "all rows on rank 0", "int64 indices"])
+def test_owned_rows_edge_cases(comm, layout):
+    """Nothing received (every rank adds to its own rows only), ranks that own no row, and
+    64-bit indices: the owned rows are still the sum, in canonical CSR with zeros kept."""
+    n_rows = 12
+    if layout == "all rows on rank 0":
+        row_ranges = np.array([0] + [n_rows] * comm.size)
+    else:
+        row_ranges = np.linspace(0, n_rows, comm.size + 1).astype(np.int64)
+    start, stop = row_ranges[comm.rank], row_ranges[comm.rank + 1]
+    rows = np.arange(start, stop) if layout == "own rows only" else np.arange(n_rows)
+    rows = np.concatenate([rows, rows])
+    cols = np.concatenate([rows[: len(rows) // 2], np.zeros(len(rows) // 2, dtype=np.int64)])
+    data = np.concatenate([np.full(len(rows) // 2, 1.0), np.zeros(len(rows) // 2)])
+    local = sp.csr_matrix((data, (rows, cols)), shape=(n_rows, n_rows))
+    if layout == "int64 indices":
+        local.indices, local.indptr = local.indices.astype(np.int64), local.indptr.astype(np.int64)
+    owned = owned_rows(comm, local, row_ranges)
+    contributors = 1 if layout == "own rows only" else comm.size
+    expected = np.zeros((stop - start, n_rows))
+    expected[np.arange(stop - start), np.arange(start, stop)] = contributors
+    np.testing.assert_array_equal(owned.toarray(), expected)
+    assert owned.nnz == 2 * (stop - start) - (1 if start == 0 and stop > 0 else 0)
+    assert owned.has_sorted_indices
 
 
 def test_owned_rows_sums_contributions_and_keeps_zeros(comm):

@@ -117,6 +117,10 @@ def test_effective_params_contain_defaults(square):
         ("square", ["solver.method=iterative"], (2.4, "gauss", 8)),
         ("square", ["solver.method=iterative", "discretization.degree=3"], (3.2, "gauss", 9)),
         ("z", ["solver.method=iterative", "discretization.degree=1"], (2.0, "gauss", 6)),
+        # ... but 3.2 at m = 3 only on the grid: coarse unstructured cells need 4.0
+        ("z", ["solver.method=iterative", "discretization.degree=3"], (4.0, "gauss", 12)),
+        ("square", ["discretization.degree=3", "solver.ksp_type=pipecg"], (4.0, "gauss", 9)),
+        ("square", ["discretization.degree=3", "solver.sub_pc_type=icc"], (4.0, "gauss", 9)),
         # PETSc options that need a symmetric K choose Gauss too; explicit keys win
         ("square", ["discretization.degree=3", "solver.pc_type=cholesky"], (4.0, "gauss", 9)),
         (

@@ -202,3 +202,22 @@ def test_an_exact_step_that_does_not_solve_the_jacobian_fails():
     cholesky = Simulation(COMM, scene, dataclasses.replace(disc, symmetric=True))
     with pytest.raises(SolverError, match="accepted as an exact solve"):
         _run(cholesky)
+
+
+def test_a_symmetric_solver_on_the_nonsymmetric_stiffness_is_refused(petsc_options):
+    """Options that reach the step solver past the scene loader (set in-process here; an
+    options file alike) and assume symmetry are refused when K is VCI's nonsymmetric one,
+    by the contact and the linear step solver; prepare() reads them and picks Gauss."""
+    overrides = ["discretization.degree=3", "discretization.h=0.125", "time.T=0.1"]
+    for steps in ([], ["boundary.bottom.type=neumann"]):  # contact, then linear steps
+        scene = load_scene("square", [*overrides, *steps])  # no options yet: VCI
+        disc = build_discretization(COMM, scene)
+        assert not disc.symmetric
+        for options in ({"pc_type": "cholesky"}, {"ksp_type": "cg", "pc_type": "jacobi"}):
+            petsc_options(options)
+            with pytest.raises(InputError, match="needs a symmetric matrix"):
+                Simulation(COMM, scene, disc)
+            chosen = prepare(COMM, "square", [*overrides, *steps]).scene.params
+            assert chosen["discretization"]["integration"] == "gauss"
+            for key in options:
+                PETSc.Options().delValue(key)

@@ -12,8 +12,9 @@ two-sided against the rates of the paper's estimate, m + 1 in L2 and m in H1: a 
 below the window is a defect (a boundary term, the quadrature), one above it a
 pre-asymptotic fit that would hide one.
 
-At the defaults (Nitsche on the Dirichlet parts, the quadrature of
-parefg.scene.schema.DEFAULT_QUADRATURE / UNSTRUCTURED_QUADRATURE) on two coarse grids;
+At the defaults (Nitsche on the Dirichlet parts; Gauss integration with the quadrature of
+parefg.scene.schema.DEFAULT_QUADRATURE / UNSTRUCTURED_QUADRATURE at m = 1, 2, VCI with
+VCI_QUADRATURE / VCI_UNSTRUCTURED_QUADRATURE at m = 3) on two or three coarse grids;
 the paper's penalty with its default alpha = 1e4 E/h at m = 1, where it is not the
 limiting error.  Collective: every rank loads the scene, builds and solves.
 """
