@@ -104,11 +104,18 @@ class ConsistencySums:
             self.touched[node] = True
             yield point, slot, node, values, gradients
 
-    def _add(self, target: np.ndarray, node: np.ndarray, weights, terms: np.ndarray) -> None:
-        """target[node[e]] += weights[e] terms[e], as one sparse product (no np.add.at)."""
+    def _summed(self, node: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """sum of rows[e] over the entries e of each node, (n_nodes, k): one sparse
+        product (no np.add.at)."""
         entries = np.arange(len(node))
-        scatter = sp.csr_matrix((weights, (node, entries)), shape=(len(target), len(node)))
-        target.reshape(len(target), -1)[...] += scatter @ terms.reshape(len(node), -1)
+        ones = np.ones(len(node))
+        scatter = sp.csr_matrix((ones, (node, entries)), shape=(len(self.nodes), len(node)))
+        return scatter @ rows.reshape(len(node), -1)
+
+    def _add(self, target: np.ndarray, node: np.ndarray, weights, terms: np.ndarray) -> None:
+        """target[node[e]] += weights[e] terms[e]."""
+        weighted = weights.reshape(-1, *([1] * (terms.ndim - 1))) * terms
+        target.reshape(len(target), -1)[...] += self._summed(node, weighted)
 
     def add_domain(self, shape: ShapeValues, points: np.ndarray, weights: np.ndarray) -> None:
         """The domain points' terms: G_I and -sum w (phi_I d_a p + d_a phi_I p) of r_I."""
@@ -120,15 +127,21 @@ class ConsistencySums:
                 *arguments, self.nodes, self.radius, self.exponents, self.moments, self.rhs
             )
             return
-        upper = np.triu_indices(self.moments.shape[1])  # G_I is symmetric
+        n_p = self.moments.shape[1]
+        upper = np.triu_indices(n_p)  # G_I is symmetric: its upper triangle suffices
+        n_upper = len(upper[0])
         for point, slot, node, p, dp in self._chunks(shape, points):
             w = weights[point]
-            products = np.zeros((len(node), *self.moments.shape[1:]))
-            products[:, upper[0], upper[1]] = p[:, upper[0]] * p[:, upper[1]]
-            self._add(self.moments, node, w, products)
-            phi, dphi = shape.phi[point, slot], shape.dphi[point, slot]  # (n,), (n, 2)
-            terms = phi[:, None, None] * dp.transpose(0, 2, 1) + dphi[:, :, None] * p[:, None, :]
-            self._add(self.rhs, node, -w, terms)
+            # every entry's weighted terms as one row: w p p^T (upper) and w r-terms
+            columns = np.empty((len(node), n_upper + 2 * n_p))
+            np.multiply((p * w[:, None])[:, upper[0]], p[:, upper[1]], out=columns[:, :n_upper])
+            terms = columns[:, n_upper:].reshape(-1, 2, n_p)
+            phi, dphi = shape.phi[point, slot] * w, shape.dphi[point, slot] * w[:, None]
+            np.multiply(phi[:, None, None], dp.transpose(0, 2, 1), out=terms)
+            terms += dphi[:, :, None] * p[:, None, :]
+            sums = self._summed(node, columns)  # (n_nodes, n_upper + 2 n_p)
+            self.moments[:, upper[0], upper[1]] += sums[:, :n_upper]
+            self.rhs -= sums[:, n_upper:].reshape(-1, 2, n_p)
 
     def symmetric_moments(self) -> np.ndarray:
         """G_I of every node from the upper triangles summed by :meth:`add_domain`."""
