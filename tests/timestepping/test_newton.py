@@ -190,7 +190,7 @@ def test_linear_path_refuses_an_answer_above_the_tolerance(petsc_options):
 
 def test_an_exact_step_that_does_not_solve_the_jacobian_fails():
     """VCI's stiffness is nonsymmetric and factored by LU; factored by Cholesky (one triangle:
-    another system, as before 2026-12-03) the exact-step shortcut would accept steps that
+    another system) the exact-step shortcut would accept steps that
     do not solve the Jacobian.  The first accepted exact step of each factorization is
     checked, so the run fails with that message instead."""
     overrides = ["discretization.degree=3", 'discretization.integration="vci"',

@@ -101,11 +101,11 @@ def test_dynamic_spatial_rates_without_time_error(case):
     3.92 / 3.27 (L2 2.31e-6, 2.16e-7, 1.00e-8, H1 4.58e-5, 6.27e-6, 4.95e-7).  At h = 1/8
     the Z's 0.25-thick strips are 2 cells across (pre-asymptotic: the Z at m = 2, 3 is
     fitted over three h; pairwise at m = 3 3.42, 4.43 / 2.87, 3.66).  Gauss integration at
-    m = 3 (the default before 2026-12-04) gave Z rates 1.3 / 0.4.  With the paper's penalty
+    m = 3 (discretization.integration = "gauss") gives Z rates 1.3 / 0.4.  With the paper's penalty
     contact the m = 2 L2 rate falls below 2 from h = 1/16 to 1/32 (its consistency error
     u_n = sigma_n / alpha_C, O(h)); see the README's dynamic convergence tables.  VCI's
-    stiffness is nonsymmetric: factored by Cholesky (one triangle) as it was before
-    2026-12-03, the steps solved another system (rates ~1, 1 and 2 ranks apart).
+    stiffness is nonsymmetric: factored by Cholesky (one triangle), the steps would solve
+    another system (measured: rates ~1, 1 and 2 ranks apart).
     """
     scene_name, degree = case
     sizes, h1_bound = DYNAMIC_CASES[case]

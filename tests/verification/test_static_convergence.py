@@ -95,8 +95,8 @@ def test_static_rates_at_the_defaults(comm, tmp_path, case):
     Z m = 2  3.3 / 2.5 (h = 1/8 ... 1/32; from 1/8 to 1/16 alone 3.7 / 2.8: at h = 1/8 the
     Z's 0.25-thick strips are 2 cells across); m = 3 with VCI, its default: square 4.6 / 3.1
     (L2 2.14e-6, 8.88e-8, H1 3.76e-5, 4.31e-6), Z 4.3 / 3.4 over h = 1/8 ... 1/32 (L2
-    8.8e-6, 4.2e-7, 2.4e-8; H1 1.15e-4, 1.47e-5, 1.10e-6).  Gauss integration at m = 3 (the
-    default before 2026-12-04) is quadrature-limited on the Z even at 12 x 12 points (H1
+    8.8e-6, 4.2e-7, 2.4e-8; H1 1.15e-4, 1.47e-5, 1.10e-6).  Gauss integration at m = 3
+    (discretization.integration = "gauss") is quadrature-limited on the Z even at 12 x 12 points (H1
     3.9e-5, 1.7e-5 at h = 1/16, 1/32: rate 1.2; README, accuracy section)."""
     shape, degree = case
     sizes, h1_bound = DEFAULT_CASES[case]
