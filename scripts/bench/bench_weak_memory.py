@@ -1,12 +1,13 @@
 """Benchmark: peak memory per rank at a fixed number of DOFs per rank, p = 1, 2, 4, 8 (issue 13).
 
 Runs `parefg run square` (m = 1 by default, CG + GAMG, one dynamic contact step) under
-``mpirun --oversubscribe -n p`` with h chosen so that the DOFs per rank stay near
-``--dofs-per-rank``, and reads summary.json: the peak RSS of the largest rank and the
-phase times.  Flat memory per rank means no rank holds more as p grows; growth at fixed
-N/p is what every rank replicates (today the node cloud, its partition and the MLS node
-arrays: O(N) per rank).  With 2 cores, p > 2 is oversubscribed: the bytes are right, the
-times are not (they are printed for completeness, not to be read as scaling).
+``mpirun -n p`` (oversubscribed; scripts/bench/bench_scaling.py's run) with h chosen so
+that the DOFs per rank stay near ``--dofs-per-rank``, and reads summary.json: the peak
+RSS of the largest rank and the phase times.  Flat memory per rank means no rank holds
+more as p grows; growth at fixed N/p is what every rank replicates (today the node
+cloud, its partition and the MLS node arrays: O(N) per rank).  With 2 cores, p > 2 is
+oversubscribed: the bytes are right, the times are not (they are printed for
+completeness, not to be read as scaling).
 
 Prints a markdown table and writes results/bench_weak_memory.csv.
 
@@ -14,41 +15,20 @@ Prints a markdown table and writes results/bench_weak_memory.csv.
         [--dofs-per-rank 25000] [--degree 1] [--repeats 1]
 """
 
-import json
 import math
-import os
 import statistics
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import benchlib
+from bench_scaling import run  # the same one-step `parefg run square` under mpirun
 
-PAREFG = str(Path(sys.executable).with_name("parefg"))
 PHASES = ("mesh", "mls", "assembly", "solve", "total")
 
 
 def spacing(dofs: int) -> int:
     """1/h of the unit square whose (n + 1)^2 nodes carry about ``dofs`` DOFs."""
     return max(2, round(math.sqrt(dofs / 2.0)) - 1)
-
-
-def run_once(ranks: int, degree: int, n: int, out: Path) -> dict:
-    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
-    env.setdefault("OMP_NUM_THREADS", "1")
-    sets = [
-        f"discretization.degree={degree}",
-        f"discretization.h={1.0 / n!r}",
-        "time.T=0.025",
-        "time.dt=0.025",
-        "output.every=0",
-    ]
-    command = ["mpirun", "--oversubscribe", "-n", str(ranks), PAREFG, "run", "square"]
-    command += ["--quiet", "--out", str(out), "--solver", "iterative", "--max-memory", "20"]
-    command += [arg for s in sets for arg in ("--set", s)]
-    subprocess.run(command, check=True, env=env, stdin=subprocess.DEVNULL)
-    return json.loads((out / "summary.json").read_text())
 
 
 def main() -> None:
@@ -63,7 +43,7 @@ def main() -> None:
         summaries = []
         for _ in range(args.repeats):
             with tempfile.TemporaryDirectory() as tmp:
-                summaries.append(run_once(ranks, args.degree, n, Path(tmp) / "run"))
+                summaries.append(run(ranks, args.degree, 1.0 / n, "iterative", Path(tmp) / "run"))
         dofs = summaries[0]["n_dofs"]
         rss = statistics.median(s["peak_rss_mb"] for s in summaries)
         row = {"ranks": ranks, "m": args.degree, "h": f"1/{n}", "dofs": dofs}
