@@ -114,7 +114,7 @@ class ConsistencySums:
 
     def _add(self, target: np.ndarray, node: np.ndarray, weights, terms: np.ndarray) -> None:
         """target[node[e]] += weights[e] terms[e]."""
-        weighted = weights.reshape(-1, *([1] * (terms.ndim - 1))) * terms
+        weighted = weights[:, None] * terms.reshape(len(node), -1)
         target.reshape(len(target), -1)[...] += self._summed(node, weighted)
 
     def add_domain(self, shape: ShapeValues, points: np.ndarray, weights: np.ndarray) -> None:

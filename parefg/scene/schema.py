@@ -350,7 +350,8 @@ def validate(
     A top-level ``name`` names the default output directory runs/<name>, so it
     must be plain (PLAIN_NAME): "/abs/path" or "../../x" would point elsewhere.
     ``command_line``: the step solver's PETSc options given on the command line
-    (``ksp_type``, ``pc_type``), which choose the defaults a symmetric solver needs.
+    (parefg.petsc_options.step_solver_options), which choose the defaults a symmetric
+    solver needs.
     """
     for key, value in raw.items():
         if key in TOP_LEVEL_KEYS and not isinstance(value, str):
