@@ -286,7 +286,7 @@ class MLS:
 
         The Frobenius estimate bounds the 2-norm condition number from above, by at
         most a factor n_basis, at the price of the inverse that is needed anyway.  As the
-        numba kernel (mls_kernels._cholesky, _inverse, _frobenius_condition, the same
+        numba kernel (step 3 of mls_kernels._lane_group, the same
         operations in the same order), vectorized over the points: A = L L^T by Cholesky,
         A^-1 column by column by forward and back substitution.  A matrix whose Cholesky
         breaks down (a pivot not positive) gets an infinite condition (singular) and an

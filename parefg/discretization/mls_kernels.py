@@ -13,6 +13,11 @@ how it is computed.  Per point x the kernel
    is accumulated without forming A_k, and the condition estimate
    ||A||_F ||A^-1||_F (infinite when the Cholesky factorization breaks down).
 
+The points go through these steps LANES at a time, the small dense algebra (2.-4.) in
+loops over the lanes, innermost, on scratch kept on the stack, which LLVM vectorizes; per
+point the operations and their order are those of one point alone, and of the numpy
+backend's, so no result depends on the grouping.
+
 Nothing here is collective.  numba compiles on first use and caches the
 machine code next to this file (``cache=True``), so only the first process
 after an edit pays the compilation.
@@ -23,7 +28,10 @@ import numpy as np
 from parefg.discretization.weights import WEIGHTS, weight_pair
 
 try:
+    import llvmlite.ir
     import numba
+    from numba.core import cgutils
+    from numba.extending import intrinsic
 except ImportError:  # pragma: no cover - numba is a Debian package of the environment
     numba = None
 
@@ -44,8 +52,45 @@ def _jit(function):
     return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy")(function)
 
 
+def _inlined(function):
+    """_jit, inlined into its caller by numba: the caller's stack scratch stays unaliased."""
+    if numba is None:  # pragma: no cover
+        return function
+    return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy", inline="always")(
+        function
+    )
+
+
 # (W(r), dW/dr) of the weight with the given code (Weight.code); both 0 for r >= 1.
 weight_and_slope = _jit(weight_pair)
+
+
+# Points evaluated together, one per SIMD lane (8 doubles fill an AVX-512 register, two
+# AVX2 ones): see the module docstring.
+LANES = 8
+
+if numba is not None:
+
+    @intrinsic
+    def _lane_scratch(typing_context, rows, columns):
+        """Pointer to rows x columns x LANES float64 on the caller's stack.
+
+        rows and columns are compile-time: an integer literal or a tuple (its length, as
+        :func:`basis_size`).  Scratch on the stack rather than np.empty: LLVM then knows
+        that it aliases none of the heap arrays the loops read, which is what lets it
+        vectorize a loop that stores into it.  Call it only in the function that uses the
+        scratch: the memory lives as long as that function's frame.
+        """
+
+        def length(kind):
+            return kind.count if isinstance(kind, numba.types.BaseTuple) else kind.literal_value
+
+        count = length(rows) * length(columns) * LANES
+
+        def codegen(context, builder, signature, args):
+            return cgutils.alloca_once(builder, llvmlite.ir.DoubleType(), size=count)
+
+        return numba.types.CPointer(numba.types.float64)(rows, columns), codegen
 
 
 # ----------------------------------------------------------------------------- neighbour search
@@ -210,141 +255,192 @@ def basis_size(degree):
     return (0.0,) * ((degree + 1) * (degree + 2) // 2)
 
 
-@_jit
-def _basis_row(xi, eta, size, row):
-    """Pascal basis [xi^a eta^b], ordered by total degree, into row (n_basis,).
+@_inlined
+def _lane_basis(offset, k, size, row):
+    """The Pascal basis rows p(offset[k, :, b]) of all lanes into row (n_basis, 1, LANES).
 
     Powers are repeated products, rounded exactly as mls.pascal_basis rounds them.
     """
-    row[0], row[1], row[2] = 1.0, xi, eta
-    if len(size) > 3:
-        row[3], row[4], row[5] = xi * xi, xi * eta, eta * eta
-    if len(size) > 6:
-        row[6], row[7] = xi * xi * xi, xi * xi * eta
-        row[8], row[9] = xi * (eta * eta), eta * eta * eta
+    for b in range(LANES):
+        xi, eta = offset[k, 0, b], offset[k, 1, b]
+        row[0, 0, b], row[1, 0, b], row[2, 0, b] = 1.0, xi, eta
+        if len(size) > 3:
+            row[3, 0, b], row[4, 0, b], row[5, 0, b] = xi * xi, xi * eta, eta * eta
+        if len(size) > 6:
+            row[6, 0, b], row[7, 0, b] = xi * xi * xi, xi * xi * eta
+            row[8, 0, b], row[9, 0, b] = xi * (eta * eta), eta * eta * eta
 
 
 @_jit
-def _cholesky(moment, size, factor):
-    """Lower-triangular L with L L^T = A into factor; False when a pivot is not positive."""
-    n = len(size)
-    for j in range(n):
-        pivot = moment[j, j]
-        for k in range(j):
-            pivot -= factor[j, k] * factor[j, k]
-        # An exact test, but harmless: a matrix that passes it with a round-off pivot gets
-        # an estimate >= 1/eps, which mls.py classifies as singular like a breakdown.
-        if not pivot > 0.0:
-            return False
-        factor[j, j] = np.sqrt(pivot)
-        for i in range(j + 1, n):
-            entry = moment[i, j]
-            for k in range(j):
-                entry -= factor[i, k] * factor[j, k]
-            factor[i, j] = entry / factor[j, j]
-    return True
+def _lane_group(points, nodes, radius, code, size, neighbours, mask, gradients, first, scratch):
+    """phi, dphi and condition of the points first .. first + LANES - 1 into the outputs.
 
-
-@_jit
-def _inverse(factor, size, inverse):
-    """A^-1 from L (L L^T = A) by forward and back substitution of each unit column."""
-    n = len(size)
-    for column in range(n):
-        for i in range(n):  # L y = e_column
-            value = 1.0 if i == column else 0.0
-            for k in range(i):
-                value -= factor[i, k] * inverse[k, column]
-            inverse[i, column] = value / factor[i, i]
-        for i in range(n - 1, -1, -1):  # L^T z = y
-            value = inverse[i, column]
-            for k in range(i + 1, n):
-                value -= factor[k, i] * inverse[k, column]
-            inverse[i, column] = value / factor[i, i]
-
-
-@_jit
-def _frobenius_condition(moment, inverse, size):
-    """||A||_F ||A^-1||_F."""
-    moment_sum, inverse_sum = 0.0, 0.0
-    for i in range(len(size)):
-        for j in range(len(size)):
-            moment_sum += moment[i, j] * moment[i, j]
-            inverse_sum += inverse[i, j] * inverse[i, j]
-    return np.sqrt(moment_sum) * np.sqrt(inverse_sum)
-
-
-@_jit
-def _weights(point, nodes, radius, code, neighbours, mask, w, dw):
-    """w_I and dw_I/dx at one point into w (n_max,), dw (n_max, 2); return the scale R."""
-    scale = 0.0
-    for k in range(len(neighbours)):
-        w[k], dw[k, 0], dw[k, 1] = 0.0, 0.0, 0.0
-        if not mask[k]:
-            continue
-        node = neighbours[k]
-        dx, dy = nodes[node, 0] - point[0], nodes[node, 1] - point[1]  # x_I - x
-        distance = np.sqrt(dx * dx + dy * dy)
-        w[k], slope = weight_and_slope(code, distance / radius[node])
-        if distance > 0.0:
-            # dw/dx = W'(r) (x - x_I) / (|x - x_I| d_I)
-            dw[k, 0] = -slope / (distance * radius[node]) * dx
-            dw[k, 1] = -slope / (distance * radius[node]) * dy
-        scale = max(scale, radius[node])
-    return scale if scale > 0.0 else 1.0
-
-
-@_jit
-def _moment(point, nodes, neighbours, mask, w, scale, size, basis, moment):
-    """Basis rows p_I into basis (n_max, n_basis) and A = sum w_I p_I p_I^T into moment."""
+    One function, steps 1.-4. of the module docstring in sequence, lane b holding point
+    first + b (lanes past the last point repeat it).  It is not split into functions on
+    purpose: the heap arrays must come in as arguments and the small matrices must live
+    on this function's stack for LLVM to vectorize the lane loops, and numba's inlining of
+    helpers that would keep both true compiles ~10x slower (a minute per degree).
+    """
+    w, dw, offset, basis_gamma, lane_phi, lane_dphi, phi, dphi, condition = scratch
+    n_points, n_max = neighbours.shape
     n_b = len(size)
+    moment = numba.carray(_lane_scratch(size, size), (n_b, n_b, LANES))
+    factor = numba.carray(_lane_scratch(size, size), (n_b, n_b, LANES))
+    inverse = numba.carray(_lane_scratch(size, size), (n_b, n_b, LANES))
+    rhs = numba.carray(_lane_scratch(2, size), (2, n_b, LANES))
+    gamma_d = numba.carray(_lane_scratch(2, size), (2, n_b, LANES))
+    row = numba.carray(_lane_scratch(size, 1), (n_b, 1, LANES))
+    sums = numba.carray(_lane_scratch(2, 1), (2, 1, LANES))
+    valid = numba.carray(_lane_scratch(1, 1), (1, 1, LANES))  # 1.0 / 0.0: A factored
+
+    # 1. w_I, dw_I/dx and the scaled offsets (x_I - x) / R, lane by lane (a gather per
+    # neighbour, scalar).  0 at padding; padding offsets keep earlier, finite, values, so
+    # the sums over all rows below add exact zeros for them.  The basis rows p_I =
+    # p(offset_I) are recomputed in each loop that needs them: cheaper than storing them.
+    for b in range(LANES):
+        q = min(first + b, n_points - 1)
+        scale = 0.0  # R: the largest covering radius (1 where none covers)
+        for k in range(n_max):
+            if mask[q, k]:
+                scale = max(scale, radius[neighbours[q, k]])
+        scale = scale if scale > 0.0 else 1.0
+        for k in range(n_max):
+            w[k, b], dw[k, 0, b], dw[k, 1, b] = 0.0, 0.0, 0.0
+            if not mask[q, k]:
+                continue
+            node = neighbours[q, k]
+            dx, dy = nodes[node, 0] - points[q, 0], nodes[node, 1] - points[q, 1]  # x_I - x
+            distance = np.sqrt(dx * dx + dy * dy)
+            w[k, b], slope = weight_and_slope(code, distance / radius[node])
+            if distance > 0.0:
+                # dw/dx = W'(r) (x - x_I) / (|x - x_I| d_I)
+                dw[k, 0, b] = -slope / (distance * radius[node]) * dx
+                dw[k, 1, b] = -slope / (distance * radius[node]) * dy
+            offset[k, 0, b], offset[k, 1, b] = dx / scale, dy / scale
+        w[n_max, b] = 1.0 / scale  # the extra row: 1 / R for the gradients
+
+    # 2. A = sum_I w_I p_I p_I^T, summed in list order (lower triangle; A is symmetric).
     for i in range(n_b):
-        for j in range(n_b):
-            moment[i, j] = 0.0
-    for k in range(len(neighbours)):
-        if not mask[k]:
-            continue
-        node = neighbours[k]
-        xi, eta = (nodes[node, 0] - point[0]) / scale, (nodes[node, 1] - point[1]) / scale
-        _basis_row(xi, eta, size, basis[k])
-        for i in range(n_b):  # lower triangle; A is symmetric
-            weighted = w[k] * basis[k, i]
+        for j in range(i + 1):
+            for b in range(LANES):
+                moment[i, j, b] = 0.0
+    for k in range(n_max):
+        _lane_basis(offset, k, size, row)
+        for i in range(n_b):
             for j in range(i + 1):
-                moment[i, j] += weighted * basis[k, j]
+                for b in range(LANES):
+                    moment[i, j, b] += w[k, b] * row[i, 0, b] * row[j, 0, b]
     for i in range(n_b):
         for j in range(i):
-            moment[j, i] = moment[i, j]
+            for b in range(LANES):
+                moment[j, i, b] = moment[i, j, b]
 
-
-@_jit
-def _gradients(inverse, size, basis, mask, w, dw, basis_gamma, scale, dphi_point, rhs):
-    """dphi_I/dx_d = (gamma_d^T p_I) w_I + (gamma^T p_I) dw_I/dx_d at one point, d = 0, 1.
-
-    rhs (4, n_basis) is scratch: rows 0-1 the right-hand sides, rows 2-3 gamma_0, gamma_1.
-    """
-    n_b = len(size)
-    # rhs_d = e_{1+d} / R - sum_I dw_I/dx_d (gamma^T p_I) p_I   (= e_{1+d} / R - A_d gamma)
+    # 3. A = L L^T.  A lane whose pivot is not positive goes on with pivot 1 (its results
+    # are discarded), as MLS._invert does, so no NaN enters the vectorized loops.  The
+    # test is exact, but harmless: a matrix that passes it with a round-off pivot gets an
+    # estimate >= 1/eps, which mls.py classifies as singular.
+    for b in range(LANES):
+        valid[0, 0, b] = 1.0
+    for j in range(n_b):
+        for b in range(LANES):
+            factor[j, j, b] = moment[j, j, b]  # the pivot, reduced below
+        for k in range(j):
+            for b in range(LANES):
+                factor[j, j, b] -= factor[j, k, b] * factor[j, k, b]
+        for b in range(LANES):
+            positive = factor[j, j, b] > 0.0
+            valid[0, 0, b] = valid[0, 0, b] if positive else 0.0
+            factor[j, j, b] = np.sqrt(factor[j, j, b] if positive else 1.0)
+        for i in range(j + 1, n_b):
+            for b in range(LANES):
+                factor[i, j, b] = moment[i, j, b]
+            for k in range(j):
+                for b in range(LANES):
+                    factor[i, j, b] -= factor[i, k, b] * factor[j, k, b]
+            for b in range(LANES):
+                factor[i, j, b] = factor[i, j, b] / factor[j, j, b]
+    # A^-1 by forward and back substitution of each unit column.
+    for column in range(n_b):
+        for i in range(n_b):  # L y = e_column
+            for b in range(LANES):
+                inverse[i, column, b] = 1.0 if i == column else 0.0
+            for k in range(i):
+                for b in range(LANES):
+                    inverse[i, column, b] -= factor[i, k, b] * inverse[k, column, b]
+            for b in range(LANES):
+                inverse[i, column, b] = inverse[i, column, b] / factor[i, i, b]
+        for i in range(n_b - 1, -1, -1):  # L^T z = y
+            for k in range(i + 1, n_b):
+                for b in range(LANES):
+                    inverse[i, column, b] -= factor[k, i, b] * inverse[k, column, b]
+            for b in range(LANES):
+                inverse[i, column, b] = inverse[i, column, b] / factor[i, i, b]
+    # The condition estimate ||A||_F ||A^-1||_F (inf where the factorization broke down).
+    for b in range(LANES):
+        sums[0, 0, b] = sums[1, 0, b] = 0.0
     for i in range(n_b):
-        rhs[0, i] = rhs[1, i] = 0.0
-    rhs[0, 1] = rhs[1, 2] = 1.0 / scale
-    for k in range(basis.shape[0]):
-        if mask[k]:
-            factor_x, factor_y = dw[k, 0] * basis_gamma[k], dw[k, 1] * basis_gamma[k]
-            for i in range(n_b):
-                rhs[0, i] -= factor_x * basis[k, i]
-                rhs[1, i] -= factor_y * basis[k, i]
-    for i in range(n_b):  # gamma_d = A^-1 rhs_d
-        rhs[2, i] = rhs[3, i] = 0.0
         for j in range(n_b):
-            rhs[2, i] += inverse[i, j] * rhs[0, j]
-            rhs[3, i] += inverse[i, j] * rhs[1, j]
-    for k in range(basis.shape[0]):
-        if mask[k]:
-            value_x, value_y = 0.0, 0.0
+            for b in range(LANES):
+                sums[0, 0, b] += moment[i, j, b] * moment[i, j, b]
+                sums[1, 0, b] += inverse[i, j, b] * inverse[i, j, b]
+    for b in range(min(LANES, n_points - first)):
+        estimate = np.sqrt(sums[0, 0, b]) * np.sqrt(sums[1, 0, b])
+        condition[first + b] = estimate if valid[0, 0, b] > 0.0 else np.inf
+
+    # 4. phi_I = (gamma^T p_I) w_I with gamma = A^-1 e_0 (column 0 of A^-1) and, for the
+    # gradients, rhs_d = e_{1+d} / R - sum_I dw_I/dx_d (gamma^T p_I) p_I (= e_{1+d} / R -
+    # A_d gamma, without forming A_d).  Sums go to stack scratch first and are then copied
+    # to the heap rows: a loop that stores into heap arrays it reads does not vectorize.
+    for d in range(2):
+        for i in range(n_b):
+            for b in range(LANES):
+                rhs[d, i, b] = 0.0
+    for b in range(LANES):
+        rhs[0, 1, b] = rhs[1, 2, b] = w[n_max, b]
+    for k in range(n_max):
+        _lane_basis(offset, k, size, row)
+        for b in range(LANES):
+            sums[0, 0, b] = 0.0
+        for i in range(n_b):
+            for b in range(LANES):
+                sums[0, 0, b] += row[i, 0, b] * inverse[i, 0, b]
+        for b in range(LANES):
+            basis_gamma[k, b] = sums[0, 0, b]
+            lane_phi[k, b] = w[k, b] * sums[0, 0, b]
+        for d in range(2):
             for i in range(n_b):
-                value_x += rhs[2, i] * basis[k, i]
-                value_y += rhs[3, i] * basis[k, i]
-            dphi_point[k, 0] = w[k] * value_x + dw[k, 0] * basis_gamma[k]
-            dphi_point[k, 1] = w[k] * value_y + dw[k, 1] * basis_gamma[k]
+                for b in range(LANES):
+                    rhs[d, i, b] -= dw[k, d, b] * sums[0, 0, b] * row[i, 0, b]
+    if gradients:
+        # dphi_I/dx_d = (gamma_d^T p_I) w_I + (gamma^T p_I) dw_I/dx_d, gamma_d = A^-1 rhs_d.
+        for d in range(2):
+            for i in range(n_b):
+                for b in range(LANES):
+                    gamma_d[d, i, b] = 0.0
+                for j in range(n_b):
+                    for b in range(LANES):
+                        gamma_d[d, i, b] += inverse[i, j, b] * rhs[d, j, b]
+        for k in range(n_max):
+            _lane_basis(offset, k, size, row)
+            for d in range(2):
+                for b in range(LANES):
+                    sums[d, 0, b] = 0.0
+                for i in range(n_b):
+                    for b in range(LANES):
+                        sums[d, 0, b] += gamma_d[d, i, b] * row[i, 0, b]
+            for d in range(2):
+                for b in range(LANES):
+                    lane_dphi[k, d, b] = w[k, b] * sums[d, 0, b] + dw[k, d, b] * basis_gamma[k, b]
+
+    for b in range(min(LANES, n_points - first)):
+        q = first + b
+        if valid[0, 0, b] == 0.0:
+            continue  # phi, dphi stay 0
+        for k in range(n_max):
+            if mask[q, k]:  # padding: phi, dphi stay 0
+                phi[q, k] = lane_phi[k, b]
+                if gradients:
+                    dphi[q, k, 0], dphi[q, k, 1] = lane_dphi[k, 0, b], lane_dphi[k, 1, b]
 
 
 @_jit
@@ -352,34 +448,25 @@ def shape_functions(points, nodes, radius, code, size, neighbours, mask, gradien
     """phi (n, n_max), dphi (n, n_max, 2) (empty unless gradients) and condition (n,).
 
     ``size`` is :func:`basis_size` of the degree.  Points whose Cholesky factorization
-    breaks down get condition inf and phi = 0.
+    breaks down get condition inf and phi = 0.  The points go through the kernel LANES
+    at a time (:func:`_lane_group`).
     """
     n_points, n_max = neighbours.shape
-    n_b = len(size)
-    # Every entry is written below (0 at padding and at rejected points).
-    phi = np.empty((n_points, n_max))
-    dphi = np.empty((n_points if gradients else 0, n_max, 2))
+    phi = np.zeros((n_points, n_max))  # 0 at padding and at rejected points
+    dphi = np.zeros((n_points if gradients else 0, n_max, 2))
     condition = np.full(n_points, np.inf)
-    # Per-point scratch, reused; rhs holds the right-hand side and gamma_k.
-    w, dw, basis = np.empty(n_max), np.empty((n_max, 2)), np.empty((n_max, n_b))
-    moment, factor, inverse = np.empty((n_b, n_b)), np.zeros((n_b, n_b)), np.empty((n_b, n_b))
-    basis_gamma, rhs = np.zeros(n_max), np.empty((4, n_b))
-    for q in range(n_points):
-        scale = _weights(points[q], nodes, radius, code, neighbours[q], mask[q], w, dw)
-        _moment(points[q], nodes, neighbours[q], mask[q], w, scale, size, basis, moment)
-        phi[q, :] = 0.0
-        if gradients:
-            dphi[q, :, :] = 0.0
-        if not _cholesky(moment, size, factor):
-            continue
-        _inverse(factor, size, inverse)
-        condition[q] = _frobenius_condition(moment, inverse, size)
-        for k in range(n_max):  # gamma = A^-1 e_0 = column 0 of A^-1
-            basis_gamma[k] = 0.0
-            if mask[q, k]:
-                for i in range(n_b):
-                    basis_gamma[k] += basis[k, i] * inverse[i, 0]
-                phi[q, k] = w[k] * basis_gamma[k]
-        if gradients:
-            _gradients(inverse, size, basis, mask[q], w, dw, basis_gamma, scale, dphi[q], rhs)
+    # Per-group scratch on the heap, lane last (w has an extra row for 1 / R).
+    scratch = (
+        np.empty((n_max + 1, LANES)),  # w
+        np.empty((n_max, 2, LANES)),  # dw
+        np.zeros((n_max, 2, LANES)),  # offset (finite from the start)
+        np.empty((n_max, LANES)),  # basis_gamma
+        np.empty((n_max, LANES)),  # phi
+        np.empty((n_max, 2, LANES)),  # dphi
+        phi,
+        dphi,
+        condition,
+    )
+    for first in range(0, n_points, LANES):
+        _lane_group(points, nodes, radius, code, size, neighbours, mask, gradients, first, scratch)
     return phi, dphi, condition

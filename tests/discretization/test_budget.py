@@ -173,11 +173,13 @@ def test_estimate_is_at_most_1_5_times_and_not_below_the_measured_peak(tmp_path,
         "time.dt=0.05",
         f"solver.method={solver}",
     ]
-    out = tmp_path / "out"
-    result, _ = run_cli(
-        ["run", "square", *sets(overrides), "--quiet", "--out", str(out)], limit_memory=False
-    )
-    assert result.returncode == 0, result.stderr
+    # The first run of a fresh checkout compiles the numba kernels (LLVM: ~80 MB at m = 2),
+    # a one-off the estimate does not model: the second run is the one measured.
+    for out in (tmp_path / "warm", tmp_path / "out"):
+        result, _ = run_cli(
+            ["run", "square", *sets(overrides), "--quiet", "--out", str(out)], limit_memory=False
+        )
+        assert result.returncode == 0, result.stderr
     measured = json.loads((out / "summary.json").read_text())["peak_rss_mb"] * 2**20
     scene = load_scene("square", overrides)
     estimated = memory_per_rank(estimate_scene(scene), 1, uses_direct_solver(scene))

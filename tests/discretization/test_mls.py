@@ -358,6 +358,33 @@ def test_numba_kernel_on_given_lists_matches_numpy_entrywise(degree):
     assert np.all(shape.phi[~mask] == 0.0) and np.all(shape.dphi[~mask] == 0.0)
 
 
+@pytest.mark.parametrize("degree", [1, 2, 3])
+def test_numba_kernel_results_do_not_depend_on_the_lane_group(degree):
+    # The kernel evaluates LANES points at once. Each point's phi, dphi and condition must
+    # be bit for bit those it gets alone, whatever shares its group: here a ragged last
+    # group and a point whose Cholesky breaks down (too few neighbours) amid regular ones.
+    nodes = jittered_nodes()
+    mls = MLS(nodes, SUPPORT[degree] * H, degree, backend="numba")
+    points = my_share(square_points())[: 3 * mls_kernels.LANES + 3].copy()
+    points[mls_kernels.LANES + 2] = (-0.5 * SUPPORT[degree] * H, 0.5)  # outside the cloud
+    neighbours, mask = mls.find_neighbours(points)
+    mask[mls_kernels.LANES + 2, 1:] = False  # one neighbour: A is singular
+    size = mls_kernels.basis_size(degree)
+    arguments = (mls.nodes, mls.support_radius, mls.weight.code, size)
+    together = mls_kernels.shape_functions(points, *arguments, neighbours, mask, True)
+    alone = [
+        mls_kernels.shape_functions(
+            points[q : q + 1], *arguments, neighbours[q : q + 1], mask[q : q + 1], True
+        )
+        for q in range(len(points))
+    ]
+    for part, result in enumerate(together):
+        assert np.array_equal(result, np.concatenate([a[part] for a in alone]))
+    broken = mls_kernels.LANES + 2
+    assert together[2][broken] == np.inf and np.all(together[0][broken] == 0.0)
+    assert np.all(np.isfinite(together[2][np.arange(len(points)) != broken]))
+
+
 @pytest.mark.parametrize("name", sorted(WEIGHTS))
 def test_compiled_weights_match_the_registry(name):
     r = np.linspace(0.0, 1.2, 1201)
