@@ -292,6 +292,7 @@ def _lane_group(points, nodes, radius, code, size, neighbours, mask, gradients, 
     row = numba.carray(_lane_scratch(size, 1), (n_b, 1, LANES))
     sums = numba.carray(_lane_scratch(2, 1), (2, 1, LANES))
     valid = numba.carray(_lane_scratch(1, 1), (1, 1, LANES))  # 1.0 / 0.0: A factored
+    inverse_scale = numba.carray(_lane_scratch(1, 1), (1, 1, LANES))  # 1 / R
 
     # 1. w_I, dw_I/dx and the scaled offsets (x_I - x) / R, lane by lane (a gather per
     # neighbour, scalar).  0 at padding; padding offsets keep earlier, finite, values, so
@@ -317,7 +318,7 @@ def _lane_group(points, nodes, radius, code, size, neighbours, mask, gradients, 
                 dw[k, 0, b] = -slope / (distance * radius[node]) * dx
                 dw[k, 1, b] = -slope / (distance * radius[node]) * dy
             offset[k, 0, b], offset[k, 1, b] = dx / scale, dy / scale
-        w[n_max, b] = 1.0 / scale  # the extra row: 1 / R for the gradients
+        inverse_scale[0, 0, b] = 1.0 / scale  # for the gradients
 
     # 2. A = sum_I w_I p_I p_I^T, summed in list order (lower triangle; A is symmetric).
     for i in range(n_b):
@@ -396,7 +397,7 @@ def _lane_group(points, nodes, radius, code, size, neighbours, mask, gradients, 
             for b in range(LANES):
                 rhs[d, i, b] = 0.0
     for b in range(LANES):
-        rhs[0, 1, b] = rhs[1, 2, b] = w[n_max, b]
+        rhs[0, 1, b] = rhs[1, 2, b] = inverse_scale[0, 0, b]
     for k in range(n_max):
         _lane_basis(offset, k, size, row)
         for b in range(LANES):
@@ -455,9 +456,9 @@ def shape_functions(points, nodes, radius, code, size, neighbours, mask, gradien
     phi = np.zeros((n_points, n_max))  # 0 at padding and at rejected points
     dphi = np.zeros((n_points if gradients else 0, n_max, 2))
     condition = np.full(n_points, np.inf)
-    # Per-group scratch on the heap, lane last (w has an extra row for 1 / R).
+    # Per-group scratch on the heap, lane last.
     scratch = (
-        np.empty((n_max + 1, LANES)),  # w
+        np.empty((n_max, LANES)),  # w
         np.empty((n_max, 2, LANES)),  # dw
         np.zeros((n_max, 2, LANES)),  # offset (finite from the start)
         np.empty((n_max, LANES)),  # basis_gamma
