@@ -100,20 +100,36 @@ SYMMETRIC_KSPS = (
     "pipefcg", "stcg", "nash", "gltr", "qcg",
 )  # fmt: skip
 SYMMETRIC_PCS = ("cholesky", "icc")
+# preconditioners whose blocks are solved by a -sub_ksp_type / -sub_pc_type solver
+BLOCK_PCS = ("bjacobi", "asm", "gasm")
 
 
 def check_symmetric_use(ksp: PETSc.KSP, symmetric: bool) -> None:
-    """InputError if the configured KSP or PC needs a symmetric operator and it is not.
+    """InputError if the configured KSP or PC, or a block solver's (-sub_ksp_type,
+    -sub_pc_type), needs a symmetric operator and it is not.
 
     The scene loader already chooses Gauss integration for such solvers
     (parefg.scene.schema.wants_symmetric); this catches the rest (options set in-process,
     an options file).  Call after setFromOptions.  Not collective: every rank has the
     same options.
     """
-    kind, pc = ksp.getType(), ksp.getPC().getType()
-    if not symmetric and (kind in SYMMETRIC_KSPS or pc in SYMMETRIC_PCS):
+    if symmetric:
+        return
+    pc = ksp.getPC().getType()
+    chosen = [("KSP", ksp.getType()), ("PC", pc)]
+    if pc in BLOCK_PCS:  # their block solvers are made at setUp, from the -sub_ options
+        options = PETSc.Options(ksp.getOptionsPrefix())
+        chosen += [
+            ("block KSP", options.getString("sub_ksp_type", "")),
+            ("block PC", options.getString("sub_pc_type", "")),
+        ]
+    assumes_symmetry = [
+        f"{what} {name}" for what, name in chosen if name in SYMMETRIC_KSPS + SYMMETRIC_PCS
+    ]
+    if assumes_symmetry:
+        needs = ", ".join(assumes_symmetry)
         raise InputError(
-            f"the step solver (KSP {kind}, PC {pc}) needs a symmetric matrix, but "
+            f"the step solver ({needs}) needs a symmetric matrix, but "
             'discretization.integration = "vci" makes the stiffness nonsymmetric: use LU '
             '(the direct solver\'s default) or set discretization.integration = "gauss"'
         )

@@ -213,7 +213,12 @@ def test_a_symmetric_solver_on_the_nonsymmetric_stiffness_is_refused(petsc_optio
         scene = load_scene("square", [*overrides, *steps])  # no options yet: VCI
         disc = build_discretization(COMM, scene)
         assert not disc.symmetric
-        for options in ({"pc_type": "cholesky"}, {"ksp_type": "cg", "pc_type": "jacobi"}):
+        refused = (
+            {"pc_type": "cholesky"},
+            {"ksp_type": "cg", "pc_type": "jacobi"},
+            {"ksp_type": "gmres", "pc_type": "bjacobi", "sub_pc_type": "icc"},  # the blocks'
+        )
+        for options in refused:
             petsc_options(options)
             with pytest.raises(InputError, match="needs a symmetric matrix"):
                 Simulation(COMM, scene, disc)
@@ -221,3 +226,8 @@ def test_a_symmetric_solver_on_the_nonsymmetric_stiffness_is_refused(petsc_optio
             assert chosen["discretization"]["integration"] == "gauss"
             for key in options:
                 PETSc.Options().delValue(key)
+        # block Jacobi with its default ILU blocks does not assume symmetry
+        petsc_options({"ksp_type": "gmres", "pc_type": "bjacobi"})
+        Simulation(COMM, scene, disc)
+        for key in ("ksp_type", "pc_type"):
+            PETSc.Options().delValue(key)
