@@ -19,7 +19,7 @@ MPIRUN    := mpirun --timeout 1500 -n 2
 # The serial pass runs on up to 4 pytest-xdist workers (one per core), one BLAS thread each.
 WORKERS   := $(shell n=$$(nproc); echo $$(( n < 4 ? n : 4 )))
 
-.PHONY: setup demo test lint clean
+.PHONY: setup demo test lint clean bench-getfem
 
 setup: $(STAMP) $(KERNELS)
 	@# Byte-compile the package: with PYTHONDONTWRITEBYTECODE set (as on some CI machines)
@@ -47,6 +47,12 @@ lint: setup
 test: lint
 	OMP_NUM_THREADS=1 $(PY) -m pytest -n $(WORKERS) -p no:cacheprovider --durations=20 tests
 	$(MPIRUN) $(PY) -m pytest -p no:cacheprovider -q tests
+
+# The side-by-side benchmark against GetFEM (README, Performance; 5-13 min).  Its optional
+# dependency, Debian's python3-getfem, is installed here only: setup and CI never need it.
+bench-getfem: setup
+	bash scripts/setup/setup.sh $(DEB_PKGS) python3-getfem
+	$(PY) scripts/bench/getfem_side_by_side.py --repeats 3
 
 clean:
 	rm -rf $(VENV) *.egg-info
