@@ -76,6 +76,24 @@ def _pairs(neighbours, mask, group_start, n_nodes):
     return node_start, nodes, pairs
 
 
+def value_rows(mls: MLS, points: np.ndarray, bounds: np.ndarray) -> tuple:
+    """The CSR arrays (indptr, indices, data) of S that :meth:`BlockPasses.fill` wrote, again.
+
+    MLS values (no gradients) of the same blocks of points (``bounds``:
+    :meth:`BlockPasses.block_bounds`), so the neighbour lists and shape functions are those
+    of the build, to the bit.  Not collective.
+    """
+    n_nodes = len(mls.nodes)
+    lengths, indices, data = [np.zeros(0, dtype=np.int64)], [np.zeros(0, np.int32)], [np.zeros(0)]
+    for first, last in zip(bounds[:-1], bounds[1:], strict=True):
+        piece = value_operator(mls.evaluate(points[first:last], gradients=False), n_nodes)
+        lengths.append(np.diff(piece.indptr))
+        indices.append(piece.indices.astype(np.int32))
+        data.append(piece.data)
+    indptr = np.concatenate([[0], np.cumsum(np.concatenate(lengths))]).astype(np.int64)
+    return indptr, np.concatenate(indices), np.concatenate(data)
+
+
 def assemble_domain(mls: MLS, quadrature: Quadrature, rho: float, timer) -> DomainOperators:
     """The domain's Gram data and value operator (see the module docstring).  Not collective.
 
@@ -106,6 +124,10 @@ class BlockPasses:
         self.searched: list[tuple | None] = [None] * len(self.blocks)  # of a one-block domain
         self.padded_slots = 0  # points x padded neighbours over all blocks
         self.shapes: list[ShapeValues | None] = [None] * len(self.blocks)  # of a one-block domain
+
+    def block_bounds(self) -> np.ndarray:
+        """(n_blocks + 1,) the first point of each block and the end of the last."""
+        return np.array([0, *(last for _, last in self.blocks)], dtype=np.int64)
 
     def block_pairs(self, index: int) -> tuple:
         """(neighbours, mask, node_start, nodes, pairs) of block ``index`` (see _pairs):

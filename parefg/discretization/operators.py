@@ -21,7 +21,7 @@ from parefg.discretization.boundary_operators import BoundaryOperators
 from parefg.discretization.budget import Budget, check_problem_size
 from parefg.discretization.consistent_gradients import ConsistencySums, node_corrections
 from parefg.discretization.dirichlet import DirichletPart
-from parefg.discretization.domain_assembly import BlockPasses
+from parefg.discretization.domain_assembly import BlockPasses, value_rows
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients, sorted_gradients
 from parefg.discretization.point_set import PointSet, point_operator
@@ -207,8 +207,18 @@ class _Builder(BoundaryOperators):
                 gradients=PointGradients(
                     self.mls, quadrature.points, keep=False, kept=operators.gradients
                 ),
+                rebuild=self._values_again(quadrature.points, passes.block_bounds()),
             )
         return domain, mass, stiffness
+
+    def _values_again(self, points: np.ndarray, bounds: np.ndarray):
+        """A function building the domain's value operator again (see PointSet.rebuild).
+
+        It holds only what it needs (the MLS, the points, the block bounds), not the
+        builder.  Collective when called.
+        """
+        comm, mls, n_local, n_nodes = self.comm, self.mls, self.n_nodes_local, self.n_nodes
+        return lambda: point_operator(comm, value_rows(mls, points, bounds), n_local, n_nodes)
 
     def _collectively(self, work):
         """``work()``; an MLSError on any rank is raised on every rank (no rank left waiting)."""

@@ -93,12 +93,41 @@ class PointGradients:
         for nodes, dphi in self._blocks():
             at = nodes if lookup is None else np.searchsorted(lookup, nodes)
             stop = start + len(nodes)
-            for c in range(2):
-                values = nodal[at, c]  # (n_block, n_max) u_c at the neighbours
-                for d in range(2):
-                    out[start:stop, c, d] = _pairwise_row_sums(dphi[:, :, d] * values)
+            _gradient_rows(dphi, nodal[at], out[start:stop])
             start = stop
         return out
+
+    def evaluate_values(self, comm, u: PETSc.Vec, gradients: bool = False):
+        """(n_points, 2) u_h at the points, without a value operator.  Collective.
+
+        MLS values per block, each point's sum over its neighbours sorted by node and taken
+        in that order from 0, as PETSc's AIJ product of the scalar value operator sums a
+        row (no inodes: see point_set.point_operator), so on one rank the numbers are those
+        of the operator.  With ``gradients`` the same MLS pass also gives grad u_h:
+        returns (values, gradients as :meth:`evaluate` computes them).  MLS is evaluated
+        here whether or not gradients are kept (kept blocks hold no values); nothing is
+        kept between calls.
+        """
+        nodal, lookup = _nodal_values(comm, u, None if comm.size == 1 else self._reached_nodes())
+        out = np.empty((len(self.points), 2))
+        grad = np.empty((len(self.points), 2, 2)) if gradients else None
+        for start in range(0, len(self.points), BLOCK_POINTS):
+            shape = self.mls.evaluate(self.points[start : start + BLOCK_POINTS], gradients)
+            slots = sorted_slots(shape, len(self.mls.nodes))
+            phi = gather(shape.phi, slots[0])  # (n_block, n_max), 0 at the padding (last)
+            nodes = slots[1]
+            at = nodes if lookup is None else np.searchsorted(lookup, nodes)
+            stop = start + len(phi)
+            for c in range(2):
+                values = nodal[at, c]  # (n_block, n_max) u_c at the neighbours
+                total = np.zeros(len(phi))
+                for k in range(phi.shape[1]):
+                    total = total + phi[:, k] * values[:, k]
+                out[start:stop, c] = total
+            if grad is not None:
+                _, dphi = sorted_gradients(shape, len(self.mls.nodes), slots)
+                _gradient_rows(dphi, nodal[at], grad[start:stop])
+        return out if grad is None else (out, grad)
 
 
 def sorted_gradients(shape: ShapeValues, n_nodes: int, slots=None) -> tuple[np.ndarray, np.ndarray]:
@@ -111,6 +140,14 @@ def sorted_gradients(shape: ShapeValues, n_nodes: int, slots=None) -> tuple[np.n
     assert shape.dphi is not None  # evaluated with gradients
     order, nodes, _ = sorted_slots(shape, n_nodes) if slots is None else slots
     return nodes.astype(np.int32), gather(shape.dphi, order)
+
+
+def _gradient_rows(dphi: np.ndarray, nodal: np.ndarray, out: np.ndarray) -> None:
+    """out[q, c, d] = sum_k dphi[q, k, d] u_c(node k): ``nodal`` (n, n_max, 2) u at each
+    point's sorted neighbours, summed as the interleaved operator's product sums."""
+    for c in range(2):
+        for d in range(2):
+            out[:, c, d] = _pairwise_row_sums(dphi[:, :, d] * nodal[:, :, c])
 
 
 def _pairwise_row_sums(products: np.ndarray) -> np.ndarray:

@@ -7,9 +7,11 @@ integrates point forces back onto the nodes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.discretization.point_gradients import PointGradients
@@ -25,12 +27,16 @@ class PointSet:
     forces: the interleaved operator kron(S, I_2) without storing it twice.  Gradients
     come from ``gradients`` (MLS re-evaluated at the points, block by block: only error
     norms and nodal stresses need them); None for point sets without gradients.
+
+    A point set with ``rebuild`` (the domain's) may drop ``values`` between uses
+    (:meth:`release_values`): ``evaluate`` then works from MLS values block by block, and
+    the next ``integrate`` builds the operator again.
     """
 
     points: np.ndarray  # (n_points, 2)
     weights: np.ndarray  # (n_points,) quadrature weights (ones for nodes)
     normals: np.ndarray | None  # (n_points, 2) outward unit normals on boundaries
-    values: PETSc.Mat
+    values: PETSc.Mat | None  # None between release_values() and the next use
     part: np.ndarray | None = None  # (n_points,) boundary part index of each point
     rows: np.ndarray | None = None  # (n_points,) global, rank-independent row of each point
     gradients: PointGradients | None = field(default=None, repr=False)
@@ -38,26 +44,62 @@ class PointSet:
     # 2 n_nodes, zero rows on penalty parts) and gamma (n_points,)
     normal_traction: PETSc.Mat | None = field(default=None, repr=False)
     gamma: np.ndarray | None = None
+    # builds ``values`` again (collective): MLS at the points once more, block by block
+    rebuild: Callable[[], PETSc.Mat] | None = field(default=None, repr=False)
     # work vectors at the points and the nodes, created on first use and reused (no PETSc
     # object per call)
     _point_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
     _node_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
 
-    def _work(self) -> tuple[PETSc.Vec, PETSc.Vec]:
+    def release_values(self, keep_below: int) -> bool:
+        """Destroy the value operator until its next use when it holds ``keep_below`` bytes
+        or more on some rank (its CSR: 12 bytes per entry); returns whether it did.
+
+        Only a point set with ``rebuild``: its next use pays the MLS of the points again,
+        which small operators are not worth.  Collective (every rank decides alike).
+        """
+        if self.rebuild is None or self.values is None:
+            return False
+        held = 12 * self.values.getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
+        comm = self.values.getComm().tompi4py()
+        if comm.allreduce(held, op=MPI.MAX) < keep_below:
+            return False
+        for obj in (self.values, self._point_vec, self._node_vec):
+            if obj is not None:
+                obj.destroy()
+        self.values = self._point_vec = self._node_vec = None
+        return True
+
+    def _operator(self) -> PETSc.Mat:
+        """The value operator, built again if it was released.  Collective."""
+        if self.values is None:
+            assert self.rebuild is not None  # only such point sets release theirs
+            self.values = self.rebuild()
+        return self.values
+
+    def _work(self) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Vec]:
+        """(the value operator, a point vector, a node vector).  Collective."""
+        values = self._operator()
         if self._point_vec is None:
-            self._point_vec = self.values.createVecLeft()
-            self._node_vec = self.values.createVecRight()
+            self._point_vec = values.createVecLeft()
+            self._node_vec = values.createVecRight()
         assert self._node_vec is not None
-        return self._point_vec, self._node_vec
+        return values, self._point_vec, self._node_vec
 
     def evaluate(self, u: PETSc.Vec) -> np.ndarray:
-        """u_h at the points, (n_points, 2).  Collective."""
-        point_vec, node_vec = self._work()
+        """u_h at the points, (n_points, 2).  Collective.
+
+        A released value operator is not built again for this: MLS values block by block
+        (:meth:`PointGradients.evaluate_values`) need no more memory than a block.
+        """
+        if self.values is None and self.gradients is not None:
+            return self.gradients.evaluate_values(u.getComm().tompi4py(), u)
+        values, point_vec, node_vec = self._work()
         dofs = u.getArray(readonly=True)
         out = np.empty((len(self.points), 2))
         for component in range(2):
             node_vec.setArray(dofs[component::2])
-            self.values.mult(node_vec, point_vec)
+            values.mult(node_vec, point_vec)
             out[:, component] = point_vec.getArray(readonly=True)
         return out
 
@@ -65,18 +107,25 @@ class PointSet:
         """grad u_h at the points, (n_points, 2, 2) with [q, i, j] = d u_i / d x_j.  Collective."""
         if self.gradients is None:
             raise ValueError("this point set has no gradients")
-        return self.gradients.evaluate(self.values.getComm().tompi4py(), u)
+        return self.gradients.evaluate(u.getComm().tompi4py(), u)
+
+    def evaluate_with_gradient(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`evaluate`, :meth:`evaluate_gradient`) of u, in one MLS pass when the
+        value operator was released (the error norms of a large run).  Collective."""
+        if self.values is None and self.gradients is not None:
+            return self.gradients.evaluate_values(u.getComm().tompi4py(), u, gradients=True)
+        return self.evaluate(u), self.evaluate_gradient(u)
 
     def integrate(self, density: np.ndarray, out: PETSc.Vec) -> None:
         """out = int density . phi_I = S^T (w density) per component; density (n_points, 2).
 
         Collective.
         """
-        point_vec, node_vec = self._work()
+        values, point_vec, node_vec = self._work()
         dofs = np.empty(2 * node_vec.getLocalSize())
         for component in range(2):
             point_vec.setArray(density[:, component] * self.weights)
-            self.values.multTranspose(point_vec, node_vec)
+            values.multTranspose(point_vec, node_vec)
             dofs[component::2] = node_vec.getArray(readonly=True)
         out.setArray(dofs)
 

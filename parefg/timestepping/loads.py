@@ -76,6 +76,12 @@ class ExternalLoads:
                 self.dirichlet[name] = IntegratedDatum(datum, integral, disc.create_vec)
         self._ubar: dict[str, dict[float, np.ndarray]] = {name: {} for name in self.dirichlet}
 
+    @property
+    def integrates_domain(self) -> bool:
+        """Whether the body force is integrated at every step (not time-separable): the
+        domain's value operator is then used by every step."""
+        return self.forces_terms[0].datum.space is None
+
     def forces(self, t: float, out: PETSc.Vec) -> PETSc.Vec:
         """out = F(t), body force and Neumann tractions against the shape functions.  Collective."""
         out.set(0.0)

@@ -27,6 +27,11 @@ from parefg.timestepping.schemes import State, make_scheme, relative_errors
 from parefg.timestepping.step_checks import StepChecks, stored_energy
 from parefg.timestepping.step_solver import ContactStepSolver
 
+# The domain's value operator is dropped for the time loop from this size on (per rank): as
+# the kept shape gradients (domain_assembly.KEEP_GRADIENT_BYTES), memory that matters only on
+# large clouds, where the MLS pass that builds it again for the error norms is a small cost.
+RELEASE_VALUE_BYTES = 16_000_000
+
 
 class Simulation(InitialState, EnergyLedger, StepChecks):
     """The time loop of one scene on ``comm``.  Construction and every method are collective.
@@ -166,7 +171,19 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self._energy_budget = [stored_energy(row), 0.0]  # initial stored energy, max |work|
         self._check_row(row, 0)
         self.history = [row]
+        self._release_domain_values()
         return state
+
+    def _release_domain_values(self) -> None:
+        """Drop the domain's value operator S for the time loop, unless a step uses it.
+
+        S (~5 KB per DOF at m = 2, the largest point operator) has served the load vectors
+        and the initial state by now; the error norms at the end build it again (one more
+        MLS pass over the Gauss points), so only operators of RELEASE_VALUE_BYTES or more
+        on some rank are dropped: a small run keeps its S and its time.  Collective.
+        """
+        if not self.loads.integrates_domain:
+            self.disc.domain.release_values(RELEASE_VALUE_BYTES)
 
     def resume(self, state: State, step: int, last_row: dict) -> State:
         """Continue from a checkpointed state after ``step`` (see parefg.io.checkpoint)."""

@@ -1,0 +1,78 @@
+"""The domain's value operator is dropped for the time loop, and nothing changes.
+
+S[q, I] = phi_I(x_q) at the domain's Gauss points is the largest point operator (12 KB per
+DOF at m = 2 with 8 x 8 points); once the load vectors and the initial state exist, only
+the error norms at the end use it (and a body force that is integrated at every step).
+Large operators are released by Simulation.start; the norms then take u_h from MLS values
+block by block, and an integration builds S again on the build's blocks of points.  These
+tests force the release on small clouds (the threshold set to 0).
+"""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from parefg.discretization import domain_assembly
+from parefg.run import prepare
+from parefg.timestepping import simulation
+
+COMM = MPI.COMM_WORLD
+# Coarse square, m = 2 and m = 3 (VCI): Nitsche Dirichlet and contact, friction, loads.
+CASES = {
+    "m2": ["discretization.h=0.25", "discretization.degree=2", "time.dt=0.05", "time.T=0.2"],
+    "m3-vci": ["discretization.h=0.25", "discretization.degree=3", "time.dt=0.05", "time.T=0.2"],
+}
+# exp(x t) is not a sum of products a(t) f(x): the body force is integrated at every step.
+NOT_SEPARABLE = 'exact.u=["exp(x * t) - 1", "0.1 * t**2 * y"]'
+
+
+def run(overrides, keep_below, monkeypatch):
+    """(values kept during the loop?, final u, errors) of a short run."""
+    monkeypatch.setattr(simulation, "RELEASE_VALUE_BYTES", keep_below)
+    sim = prepare(COMM, "square", overrides)
+    state = sim.start()
+    held = sim.disc.domain.values is not None
+    for n in range(1, sim.scene.time.n_steps + 1):
+        state = sim.step(state, n)
+    u = state.u.getArray(readonly=True).copy()
+    return held, u, sim.errors(state.u, sim.scene.time.T), sim
+
+
+@pytest.mark.parametrize("kernels", ["numpy", "numba"])
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_released_values_change_nothing(case, kernels, monkeypatch):
+    monkeypatch.setenv("PAREFG_KERNELS", kernels)  # large clouds run numba's
+    kept, u_kept, errors_kept, _ = run(CASES[case], 10**15, monkeypatch)
+    released, u_released, errors_released, sim = run(CASES[case], 0, monkeypatch)
+    assert kept and not released  # the threshold decides, on every rank alike
+    np.testing.assert_array_equal(u_released, u_kept)  # the loop never used S
+    if COMM.size == 1:  # MLS values summed as PETSc's product of S sums a row
+        assert errors_released == errors_kept
+    for name, value in errors_kept.items():  # on 2 ranks S's product is split into two
+        assert errors_released[name] == pytest.approx(value, rel=1e-12)
+
+
+@pytest.mark.parametrize("block_points", [65536, 300], ids=["one-block", "blocks"])
+def test_the_rebuilt_operator_is_the_built_one(block_points, monkeypatch):
+    monkeypatch.setattr(simulation, "RELEASE_VALUE_BYTES", 0)
+    monkeypatch.setattr(domain_assembly, "BLOCK_POINTS", block_points)  # 1024 points here
+    sim = prepare(COMM, "square", CASES["m2"])
+    built = [array.copy() for array in sim.disc.domain.values.getValuesCSR()]
+    sim.start()
+    assert sim.disc.domain.values is None
+    rebuilt = sim.disc.domain.rebuild().getValuesCSR()
+    for before, after in zip(built, rebuilt, strict=True):
+        np.testing.assert_array_equal(after, before)
+
+
+def test_a_body_force_integrated_per_step_keeps_the_operator(monkeypatch):
+    held, _, errors, sim = run([*CASES["m2"], NOT_SEPARABLE], 0, monkeypatch)
+    assert sim.loads.integrates_domain
+    assert held
+    assert np.isfinite(errors["h1_rel"])
+
+
+def test_small_operators_are_kept_by_default():
+    sim = prepare(COMM, "square", CASES["m2"])
+    sim.start()
+    assert sim.disc.domain.values is not None  # a few KB: not worth an MLS pass
