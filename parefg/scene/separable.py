@@ -17,7 +17,8 @@ the split is the same expression rewritten, never an approximation:
 - |a(t) f(x)| = |a(t)| |f(x)| for a single term (the symbols are real);
 - anything else that mixes t with a space argument (sin(x t), exp(x + t), a quotient by
   a sum in x and t) leaves the datum non-separable: :func:`separate` returns None and
-  the datum keeps its per-point evaluation.
+  the datum keeps its per-point evaluation;
+- a datum without t is the one term 1 * f(x).
 
 Terms with the same time factor, up to a constant (``cos(t) - 1`` and ``1 - cos(t)``),
 are merged, so K is the number of distinct time factors.  Not collective.
@@ -56,12 +57,14 @@ class Separation:
 def separate(exprs: Sequence[sympy.Expr], t: sympy.Symbol = SYMBOLS["t"]) -> Separation | None:
     """The split of ``exprs`` (c expressions) into sum_k a_k(t) f_k, or None.
 
-    None when some expression is not separable by the rules of the module docstring, or
-    when no expression depends on t (nothing to gain).  Not collective.
+    None when some expression is not separable by the rules of the module docstring.  Data
+    that do not depend on t are one term, 1 * f (K = 1): a run integrates them once instead
+    of at every step (constant loads, clamped or fixed Dirichlet data, a constant friction
+    bound are the common case).  Not collective.
     """
     exprs = [sympy.sympify(expr) for expr in exprs]
     if not any(t in expr.free_symbols for expr in exprs):
-        return None
+        return Separation([sympy.S.One], [list(exprs)])
     time: dict[sympy.Expr, int] = {}  # canonical time factor -> k
     space: list[list[sympy.Expr]] = []
     for component, expr in enumerate(exprs):

@@ -76,8 +76,12 @@ def test_data_mixing_x_and_t_are_not_split(texts):
     assert separate(parsed(texts)) is None
 
 
-def test_time_independent_data_are_not_split():
-    assert separate(parsed(["x**2 + y"])) is None
+def test_time_independent_data_are_one_term():
+    """1 * f: integrated once per run instead of at every step."""
+    exprs = parsed(["x**2 + y", "0"])
+    split = separate(exprs)
+    assert split is not None and split.time == [1]
+    assert_reproduces(exprs, split)
 
 
 def test_a_product_of_too_many_sums_is_not_split():
