@@ -197,9 +197,15 @@ class PointDatum:
         Not collective."""
         return np.asarray(self.field(*_at_time(arguments, t)), dtype=float)
 
+    def release_space(self) -> None:
+        """Drop the f_k at the points once the caller has integrated them (a body force:
+        its steps need only the a_k(t)); :meth:`values` then evaluates the datum point by
+        point.  Not collective."""
+        self.space = None
+
     def coefficients(self, t: float) -> np.ndarray | None:
         """(K,) the a_k(t) when the split gives the values at t, else None.  Not collective."""
-        if self.space is None:
+        if self.scale is None:  # no usable split (set with space, kept when space is released)
             return None
         with np.errstate(all="ignore"):
             a = self.field.separated.time(t)

@@ -65,6 +65,7 @@ def test_separable_loads_equal_the_per_point_loads(scene_name, overrides):
     assert all(term.vectors for term in fast.loads.forces_terms)
     assert all(term.vectors for term in fast.loads.dirichlet.values())
     assert not any(term.vectors for term in slow.loads.forces_terms)
+    assert fast.loads.forces_terms[0].datum.space is None  # f_k at the Gauss points: dropped
     # scales at t = 1: ubar(0) = 0 exactly for these solutions
     force_scale = slow.external_forces(1.0).norm()
     dirichlet_scale = _dirichlet_load(slow, 1.0).norm()
