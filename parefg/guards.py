@@ -16,6 +16,7 @@ exactly as the Jacobian of the current active set sees it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import scipy.linalg
@@ -169,6 +170,7 @@ class PointDatum:
     def __init__(self, guard, key, field, points, arguments, nonnegative=False, comm=None):
         self.guard, self.key, self.field = guard, key, field
         self.points, self.arguments, self.nonnegative = points, arguments, nonnegative
+        self._again: Callable[[], tuple[np.ndarray, dict]] | None = None  # release_space's
         self.space: np.ndarray | None = None  # (K, *components, n) the f_k at the points
         self.scale: np.ndarray | None = None  # (K,) max |f_k| (over all ranks with comm)
         split = getattr(field, "separated", None)  # a plain callable has none
@@ -197,11 +199,19 @@ class PointDatum:
         Not collective."""
         return np.asarray(self.field(*_at_time(arguments, t)), dtype=float)
 
-    def release_space(self) -> None:
+    def release_space(self, again: Callable[[], tuple[np.ndarray, dict]] | None = None) -> None:
         """Drop the f_k at the points once the caller has integrated them (a body force:
         its steps need only the a_k(t)); :meth:`values` then evaluates the datum point by
-        point.  Not collective."""
+        point.  Not collective.
+
+        With ``again`` (returning the points and arguments anew) and a usable split, the
+        points and arguments are dropped too: only a step that evaluates the datum as
+        written needs them, and gets them from ``again``.
+        """
         self.space = None
+        if again is not None and self.scale is not None:
+            self.points = self.arguments = None
+            self._again = again
 
     def coefficients(self, t: float) -> np.ndarray | None:
         """(K,) the a_k(t) when the split gives the values at t, else None.  Not collective."""
@@ -228,6 +238,9 @@ class PointDatum:
 
     def _checked(self, t: float) -> np.ndarray:
         """The datum evaluated as written, through the guard.  Not collective."""
+        if self.points is None or self.arguments is None:
+            assert self._again is not None  # released by release_space(again)
+            self.points, self.arguments = self._again()
         args = _at_time(self.arguments, t)
         return self.guard.evaluate(
             self.key, self.field, self.points, t, *args, nonnegative=self.nonnegative

@@ -9,6 +9,7 @@ u_h (and its gradient) at quadrature points, Gamma_C points and nodes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -94,6 +95,10 @@ def _mass_blocks(gram: np.ndarray) -> np.ndarray:
     return gram * np.eye(2)
 
 
+def _points_and_weights(rule: Quadrature) -> tuple[np.ndarray, np.ndarray]:
+    return rule.points, rule.weights
+
+
 class _Builder(BoundaryOperators):
     """Collective construction of a Discretization from a scene.
 
@@ -170,7 +175,8 @@ class _Builder(BoundaryOperators):
 
     def _domain(self) -> tuple[PointSet, PETSc.Mat, PETSc.Mat]:
         """The domain point set, M and K, from MLS evaluated block by block."""
-        scene, quadrature = self.scene, self._domain_quadrature()
+        rule = self._domain_rule()
+        scene, quadrature = self.scene, rule()
         passes = BlockPasses(self.mls, quadrature, lambda name: phase(self.timings, name))
         indptr, indices, row_lengths = self._collectively(passes.pattern)
         correction = None
@@ -207,18 +213,34 @@ class _Builder(BoundaryOperators):
                 gradients=PointGradients(
                     self.mls, quadrature.points, keep=False, kept=operators.gradients
                 ),
-                rebuild=self._values_again(quadrature.points, passes.block_bounds()),
+                rebuild=self._values_again(passes.block_bounds()),
+                regenerate=lambda: _points_and_weights(rule()),
             )
         return domain, mass, stiffness
 
-    def _values_again(self, points: np.ndarray, bounds: np.ndarray):
-        """A function building the domain's value operator again (see PointSet.rebuild).
+    def _values_again(self, bounds: np.ndarray):
+        """A function building the domain's value operator again from its points (see
+        PointSet.rebuild).
 
-        It holds only what it needs (the MLS, the points, the block bounds), not the
-        builder.  Collective when called.
+        It holds only what it needs (the MLS, the block bounds), not the builder.
+        Collective when called.
         """
         comm, mls, n_local, n_nodes = self.comm, self.mls, self.n_nodes_local, self.n_nodes
-        return lambda: point_operator(comm, value_rows(mls, points, bounds), n_local, n_nodes)
+        return lambda points: point_operator(
+            comm, value_rows(mls, points, bounds), n_local, n_nodes
+        )
+
+    def _domain_rule(self) -> Callable[[], Quadrature]:
+        """A function computing the Gauss points of this rank's cells (the same numbers at
+        every call), holding the cloud and the rank's cell ids, not the builder.  Not
+        collective."""
+        cloud, order = self.cloud, self.scene.discretization.quadrature
+        quads = np.flatnonzero(self.partition.quad_owner == self.comm.rank)
+        triangles = np.flatnonzero(self.partition.triangle_owner == self.comm.rank)
+        return lambda: cell_quadrature(
+            cloud.coords, cloud.quads, cloud.triangles, order, quad_ids=quads,
+            triangle_ids=triangles,
+        )  # fmt: skip
 
     def _collectively(self, work):
         """``work()``; an MLSError on any rank is raised on every rank (no rank left waiting)."""
@@ -249,18 +271,6 @@ class _Builder(BoundaryOperators):
             )
             self.conditions.append(shape.condition)
         return shape
-
-    def _domain_quadrature(self) -> Quadrature:
-        """Gauss points of this rank's cells."""
-        rank, cloud, part = self.comm.rank, self.cloud, self.partition
-        return cell_quadrature(
-            cloud.coords,
-            cloud.quads,
-            cloud.triangles,
-            self.scene.discretization.quadrature,
-            quad_ids=np.flatnonzero(part.quad_owner == rank),
-            triangle_ids=np.flatnonzero(part.triangle_owner == rank),
-        )
 
     def _square(self, local: sp.csr_matrix) -> PETSc.Mat:
         """The PETSc DOF matrix of every rank's ``local`` contributions.  Collective.

@@ -42,13 +42,20 @@ class PointGradients:
         keep: bool,
         kept: list[tuple[np.ndarray, np.ndarray]] | None = None,
     ):
-        self.mls, self.points, self.keep = mls, points, keep or kept is not None
+        self.mls, self.keep = mls, keep or kept is not None
+        # None while the owning PointSet has released its points (PointSet.release_points)
+        self.points: np.ndarray | None = points
         self.kept = kept  # (nodes, dphi) per block
         self._reached: np.ndarray | None = None  # sorted nodes the points reach (kept sets)
 
+    def _points(self) -> np.ndarray:
+        """The points (restored by the owner before any evaluation)."""
+        assert self.points is not None, "points released: PointSet.restore_points first"
+        return self.points
+
     def _block(self, start: int) -> tuple[np.ndarray, np.ndarray]:
         """:func:`sorted_gradients` of the block at ``start``."""
-        points = self.points[start : start + BLOCK_POINTS]
+        points = self._points()[start : start + BLOCK_POINTS]
         return sorted_gradients(self.mls.evaluate(points, gradients=True), len(self.mls.nodes))
 
     def _blocks(self):
@@ -57,7 +64,7 @@ class PointGradients:
             yield from self.kept
             return
         kept = []
-        for start in range(0, len(self.points), BLOCK_POINTS):
+        for start in range(0, len(self._points()), BLOCK_POINTS):
             block = self._block(start)
             if self.keep:
                 kept.append(block)
@@ -74,8 +81,9 @@ class PointGradients:
         if self.kept is not None:
             self._reached = np.unique(np.concatenate([*parts, *(n.ravel() for n, _ in self.kept)]))
             return self._reached
-        for start in range(0, len(self.points), BLOCK_POINTS):
-            neighbours, mask = self.mls.find_neighbours(self.points[start : start + BLOCK_POINTS])
+        points = self._points()
+        for start in range(0, len(points), BLOCK_POINTS):
+            neighbours, mask = self.mls.find_neighbours(points[start : start + BLOCK_POINTS])
             parts.append(np.unique(neighbours[mask]))
         reached = np.unique(np.concatenate(parts))
         if self.keep:
@@ -88,7 +96,7 @@ class PointGradients:
         ``u`` is the interleaved DOF vector (block size 2).
         """
         nodal, lookup = _nodal_values(comm, u, None if comm.size == 1 else self._reached_nodes())
-        out = np.empty((len(self.points), 2, 2))
+        out = np.empty((len(self._points()), 2, 2))
         start = 0
         for nodes, dphi in self._blocks():
             at = nodes if lookup is None else np.searchsorted(lookup, nodes)
@@ -109,10 +117,11 @@ class PointGradients:
         kept between calls.
         """
         nodal, lookup = _nodal_values(comm, u, None if comm.size == 1 else self._reached_nodes())
-        out = np.empty((len(self.points), 2))
-        grad = np.empty((len(self.points), 2, 2)) if gradients else None
-        for start in range(0, len(self.points), BLOCK_POINTS):
-            shape = self.mls.evaluate(self.points[start : start + BLOCK_POINTS], gradients)
+        points = self._points()
+        out = np.empty((len(points), 2))
+        grad = np.empty((len(points), 2, 2)) if gradients else None
+        for start in range(0, len(points), BLOCK_POINTS):
+            shape = self.mls.evaluate(points[start : start + BLOCK_POINTS], gradients)
             slots = sorted_slots(shape, len(self.mls.nodes))
             phi = gather(shape.phi, slots[0])  # (n_block, n_max), 0 at the padding (last)
             nodes = slots[1]

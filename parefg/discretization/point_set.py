@@ -30,11 +30,14 @@ class PointSet:
 
     A point set with ``rebuild`` (the domain's) may drop ``values`` between uses
     (:meth:`release_values`): ``evaluate`` then works from MLS values block by block, and
-    the next ``integrate`` builds the operator again.
+    the next ``integrate`` builds the operator again.  One with ``regenerate`` may also
+    drop its points and weights (:meth:`release_points`, 24 bytes per point): every
+    method here computes them again when it needs them (:meth:`restore_points`), and so
+    must any other reader of ``points`` or ``weights`` after a release.
     """
 
-    points: np.ndarray  # (n_points, 2)
-    weights: np.ndarray  # (n_points,) quadrature weights (ones for nodes)
+    points: np.ndarray | None  # (n_points, 2); None between release_points() and a use
+    weights: np.ndarray | None  # (n_points,) quadrature weights (ones for nodes)
     normals: np.ndarray | None  # (n_points, 2) outward unit normals on boundaries
     values: PETSc.Mat | None  # None between release_values() and the next use
     part: np.ndarray | None = None  # (n_points,) boundary part index of each point
@@ -44,8 +47,10 @@ class PointSet:
     # 2 n_nodes, zero rows on penalty parts) and gamma (n_points,)
     normal_traction: PETSc.Mat | None = field(default=None, repr=False)
     gamma: np.ndarray | None = None
-    # builds ``values`` again (collective): MLS at the points once more, block by block
-    rebuild: Callable[[], PETSc.Mat] | None = field(default=None, repr=False)
+    # builds ``values`` again from the points (collective): MLS there once more, by block
+    rebuild: Callable[[np.ndarray], PETSc.Mat] | None = field(default=None, repr=False)
+    # computes (points, weights) again, the same numbers in the same order (not collective)
+    regenerate: Callable[[], tuple[np.ndarray, np.ndarray]] | None = field(default=None, repr=False)
     # work vectors at the points and the nodes, created on first use and reused (no PETSc
     # object per call)
     _point_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
@@ -70,11 +75,32 @@ class PointSet:
         self.values = self._point_vec = self._node_vec = None
         return True
 
+    def release_points(self) -> bool:
+        """Drop the points and weights until their next use (a point set with
+        ``regenerate``); returns whether it did.  Not collective."""
+        if self.regenerate is None:
+            return False
+        self.points = self.weights = None
+        if self.gradients is not None:
+            self.gradients.points = None
+        return True
+
+    def restore_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """(points, weights), computed again if they were released (and kept from then on:
+        the uses after a release are the end of a run, or a step that evaluates data point
+        by point).  Not collective."""
+        if self.points is None or self.weights is None:
+            assert self.regenerate is not None  # only such point sets release theirs
+            self.points, self.weights = self.regenerate()
+            if self.gradients is not None:
+                self.gradients.points = self.points
+        return self.points, self.weights
+
     def _operator(self) -> PETSc.Mat:
         """The value operator, built again if it was released.  Collective."""
         if self.values is None:
             assert self.rebuild is not None  # only such point sets release theirs
-            self.values = self.rebuild()
+            self.values = self.rebuild(self.restore_points()[0])
         return self.values
 
     def _work(self) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Vec]:
@@ -92,11 +118,12 @@ class PointSet:
         A released value operator is not built again for this: MLS values block by block
         (:meth:`PointGradients.evaluate_values`) need no more memory than a block.
         """
+        points, _ = self.restore_points()
         if self.values is None and self.gradients is not None:
             return self.gradients.evaluate_values(u.getComm().tompi4py(), u)
         values, point_vec, node_vec = self._work()
         dofs = u.getArray(readonly=True)
-        out = np.empty((len(self.points), 2))
+        out = np.empty((len(points), 2))
         for component in range(2):
             node_vec.setArray(dofs[component::2])
             values.mult(node_vec, point_vec)
@@ -107,12 +134,14 @@ class PointSet:
         """grad u_h at the points, (n_points, 2, 2) with [q, i, j] = d u_i / d x_j.  Collective."""
         if self.gradients is None:
             raise ValueError("this point set has no gradients")
+        self.restore_points()
         return self.gradients.evaluate(u.getComm().tompi4py(), u)
 
     def evaluate_with_gradient(self, u: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
         """(:meth:`evaluate`, :meth:`evaluate_gradient`) of u, in one MLS pass when the
         value operator was released (the error norms of a large run).  Collective."""
         if self.values is None and self.gradients is not None:
+            self.restore_points()
             return self.gradients.evaluate_values(u.getComm().tompi4py(), u, gradients=True)
         return self.evaluate(u), self.evaluate_gradient(u)
 
@@ -121,10 +150,11 @@ class PointSet:
 
         Collective.
         """
+        _, weights = self.restore_points()
         values, point_vec, node_vec = self._work()
         dofs = np.empty(2 * node_vec.getLocalSize())
         for component in range(2):
-            point_vec.setArray(density[:, component] * self.weights)
+            point_vec.setArray(density[:, component] * weights)
             values.multTranspose(point_vec, node_vec)
             dofs[component::2] = node_vec.getArray(readonly=True)
         out.setArray(dofs)

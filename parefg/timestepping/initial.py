@@ -45,7 +45,7 @@ class InitialState:
     def _project(self, key: str, field) -> PETSc.Vec:
         """L2 projection M d = int rho f . phi of initial field ``key`` (zero stays zero)."""
         disc = self.disc
-        points = disc.domain.points
+        points, _ = disc.domain.restore_points()
         x, y = points.T
         values = (
             self.guard.evaluate(("initial", key), field, points, 0.0, x, y).T
@@ -160,7 +160,7 @@ class InitialState:
         """The right-hand side of :meth:`_elliptic_projection` (a new vector).  Collective."""
         scene, disc, part = self.scene, self.disc, self._part
         rhs = disc.create_vec()
-        points = disc.domain.points
+        points, _ = disc.domain.restore_points()
         x, y = points.T
         key = ("initial", "u")
         div = self.guard.evaluate(key, scene.initial.div_stress, points, 0.0, x, y)  # (2, n_q)

@@ -59,12 +59,13 @@ class ExternalLoads:
         self.disc = disc
         self._work = disc.create_vec()
         domain = disc.domain
-        x, y = domain.points.T
         force = PointDatum(
-            guard, ("loads", "f"), scene.loads.f, domain.points, {"x": x, "y": y}, comm=comm
+            guard, ("loads", "f"), scene.loads.f, *_coordinates(domain.points), comm=comm
         )
         self.forces_terms = [IntegratedDatum(force, _point_integral(domain), disc.create_vec)]
-        force.release_space()  # f_k at every Gauss point (~1 KB per DOF at m = 2): integrated
+        # f_k at every Gauss point (~1 KB per DOF at m = 2) are integrated; the points
+        # themselves may be released by the domain (Simulation.start)
+        force.release_space(again=lambda: _coordinates(domain.restore_points()[0]))
         self.dirichlet: dict[str, IntegratedDatum] = {}
         for name, bc in scene.boundaries.items():
             if bc.kind == BoundaryKind.NEUMANN:
@@ -126,6 +127,12 @@ def _boundary_datum(comm, guard, disc, name: str, key: str, field) -> PointDatum
     if key == "traction":
         arguments["nx"], arguments["ny"] = points.normals.T
     return PointDatum(guard, ("boundary", name, key), field, points.points, arguments, comm=comm)
+
+
+def _coordinates(points: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """A body force's points and arguments (x, y)."""
+    x, y = points.T
+    return points, {"x": x, "y": y}
 
 
 def _point_integral(points) -> Integrate:

@@ -178,12 +178,15 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         """Drop the domain's value operator S for the time loop, unless a step uses it.
 
         S (~5 KB per DOF at m = 2, the largest point operator) has served the load vectors
-        and the initial state by now; the error norms at the end build it again (one more
-        MLS pass over the Gauss points), so only operators of RELEASE_VALUE_BYTES or more
-        on some rank are dropped: a small run keeps its S and its time.  Collective.
+        and the initial state by now; the error norms at the end take u_h from one more
+        MLS pass over the Gauss points, so only operators of RELEASE_VALUE_BYTES or more
+        on some rank are dropped: a small run keeps its S and its time.  With S go the
+        Gauss points and weights (0.7 KB per DOF at m = 2), computed again from the cells
+        by their next use.  Collective.
         """
-        if not self.loads.integrates_domain:
-            self.disc.domain.release_values(RELEASE_VALUE_BYTES)
+        domain = self.disc.domain
+        if not self.loads.integrates_domain and domain.release_values(RELEASE_VALUE_BYTES):
+            domain.release_points()  # 24 bytes per point, computed again by a later use
 
     def resume(self, state: State, step: int, last_row: dict) -> State:
         """Continue from a checkpointed state after ``step`` (see parefg.io.checkpoint)."""

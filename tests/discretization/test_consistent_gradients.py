@@ -96,7 +96,7 @@ def _builder(comm, tmp_path, degree: int, quadrature: int):
 def _corrections(builder, compiled: bool):
     """(domain quadrature, corrected gradients at its points, MLS shape there)."""
     mls = builder.mls
-    quadrature = builder._domain_quadrature()
+    quadrature = builder._domain_rule()()
     passes = BlockPasses(mls, quadrature, lambda name: phase(builder.timings, name))
     passes.pattern()
     sums = ConsistencySums(mls.nodes, mls.support_radius, mls.degree, compiled=compiled)

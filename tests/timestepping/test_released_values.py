@@ -57,12 +57,36 @@ def test_the_rebuilt_operator_is_the_built_one(block_points, monkeypatch):
     monkeypatch.setattr(simulation, "RELEASE_VALUE_BYTES", 0)
     monkeypatch.setattr(domain_assembly, "BLOCK_POINTS", block_points)  # 1024 points here
     sim = prepare(COMM, "square", CASES["m2"])
-    built = [array.copy() for array in sim.disc.domain.values.getValuesCSR()]
+    domain = sim.disc.domain
+    built = [array.copy() for array in domain.values.getValuesCSR()]
+    points, weights = domain.points, domain.weights
     sim.start()
-    assert sim.disc.domain.values is None
-    rebuilt = sim.disc.domain.rebuild().getValuesCSR()
+    assert domain.values is None and domain.points is None and domain.weights is None
+    assert domain.gradients.points is None  # no reference left to the released points
+    rebuilt = domain.rebuild(domain.restore_points()[0]).getValuesCSR()
     for before, after in zip(built, rebuilt, strict=True):
         np.testing.assert_array_equal(after, before)
+    np.testing.assert_array_equal(domain.points, points)  # the same rule, computed again
+    np.testing.assert_array_equal(domain.weights, weights)
+    assert domain.gradients.points is domain.points
+
+
+def test_a_body_force_evaluated_as_written_gets_the_points_back(monkeypatch):
+    """A step whose a_k(t) are not usable evaluates f point by point at the Gauss points,
+    which the release dropped: the datum computes them again (and the run goes on)."""
+    monkeypatch.setattr(simulation, "RELEASE_VALUE_BYTES", 0)
+    sim = prepare(COMM, "square", CASES["m2"])
+    datum = sim.loads.forces_terms[0].datum
+    assert datum.scale is not None and datum.points is None  # split usable: points dropped
+    built = sim.disc.domain.points.copy()
+    sim.start()
+    assert sim.disc.domain.points is None
+    values = datum._checked(0.1)  # the path of a step without usable a_k(t)
+    expected = datum._direct({"x": built[:, 0], "y": built[:, 1]}, 0.1)
+    np.testing.assert_array_equal(values, expected)  # at the points the run was built on
+    vector = sim.disc.create_vec()
+    sim.loads.forces_terms[0].integrate(values, vector)  # S built again on the points
+    assert np.isfinite(vector.norm())
 
 
 def test_a_body_force_integrated_per_step_keeps_the_operator(monkeypatch):
