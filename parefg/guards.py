@@ -173,6 +173,8 @@ class PointDatum:
         self._again: Callable[[], tuple[np.ndarray, dict]] | None = None  # release_space's
         self.space: np.ndarray | None = None  # (K, *components, n) the f_k at the points
         self.scale: np.ndarray | None = None  # (K,) max |f_k| (over all ranks with comm)
+        # (t, a_k(t) or None) of the last coefficients() call; NaN: none yet
+        self._last_coefficients: tuple[float, np.ndarray | None] = (math.nan, None)
         split = getattr(field, "separated", None)  # a plain callable has none
         if split is None:
             return
@@ -214,13 +216,23 @@ class PointDatum:
             self._again = again
 
     def coefficients(self, t: float) -> np.ndarray | None:
-        """(K,) the a_k(t) when the split gives the values at t, else None.  Not collective."""
+        """(K,) the a_k(t) when the split gives the values at t, else None (read-only).
+
+        The last t's answer is kept: a step asks for it several times (loads, Dirichlet
+        data and their energy shares).  Not collective."""
         if self.scale is None:  # no usable split (set with space, kept when space is released)
             return None
+        if self._last_coefficients[0] != t:
+            self._last_coefficients = (t, self._split_coefficients(t))
+        return self._last_coefficients[1]
+
+    def _split_coefficients(self, t: float) -> np.ndarray | None:
+        """The a_k(t), or None where they are not finite or reach DATA_BOUND."""
         with np.errstate(all="ignore"):
             a = self.field.separated.time(t)
             if not all_finite(a) or not np.abs(a) @ self.scale <= DATA_BOUND:
                 return None
+        a.flags.writeable = False
         return a
 
     def values(self, t: float) -> np.ndarray:
