@@ -13,9 +13,18 @@ anyway, ask for ob1 directly; a process started without mpirun (a singleton) als
 starting Open MPI's helper daemon, which it needs only to spawn processes (parefg never
 does).  Any OMPI_MCA_* value the user set wins; on several machines nothing is changed,
 so a cluster keeps its fast network layer.  Other MPI libraries ignore these variables.
+
+Such isolated singletons all name their session directory jf.0 under the same base
+(/tmp/ompi.HOST.UID), so two processes starting at once could race to create it ("A call
+to mkdir was unable to create the desired directory ... File exists": seen when a test
+run and another parefg process started together).  A singleton made isolated here gets a
+session-directory base of its own, removed when the process ends.
 """
 
+import atexit
 import os
+import shutil
+import tempfile
 
 DEBIAN_PETSC_DIR = "/usr/lib/petscdir/petsc3.18/x86_64-linux-gnu-real"
 
@@ -36,4 +45,18 @@ def one_machine_transport(environ) -> dict[str, str]:
     return {key: value for key, value in wanted.items() if key not in environ}
 
 
-os.environ.update(one_machine_transport(os.environ))
+def private_session_base() -> dict[str, str]:
+    """A new session-directory base for this process's Open MPI (removed at exit); {} when
+    none can be made (Open MPI then uses its default)."""
+    try:
+        base = tempfile.mkdtemp(prefix="parefg-ompi-")
+    except OSError:
+        return {}
+    atexit.register(shutil.rmtree, base, ignore_errors=True)
+    return {"OMPI_MCA_orte_tmpdir_base": base}
+
+
+_settings = one_machine_transport(os.environ)
+if "OMPI_MCA_ess_singleton_isolated" in _settings and "OMPI_MCA_orte_tmpdir_base" not in os.environ:
+    _settings.update(private_session_base())
+os.environ.update(_settings)

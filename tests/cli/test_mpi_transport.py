@@ -6,6 +6,7 @@ real process before MPI_Init."""
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from conftest import mpi_env
@@ -52,3 +53,44 @@ def test_the_choice_is_made_before_mpi_starts_and_mpi_runs_with_it():
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ["ob1", "1"]
+
+
+@pytest.mark.serial_only
+def test_a_singleton_keeps_its_session_directory_to_itself_and_removes_it():
+    """Isolated singletons all name their session directory jf.0: each parefg singleton
+    gets its own base for it (two processes starting at once raced to create the shared
+    one), used by Open MPI and removed when the process ends."""
+    env = {key: value for key, value in mpi_env().items() if key != "OMPI_MCA_pml"}
+    env.pop("OMPI_MCA_ess_singleton_isolated", None)
+    probe = (
+        "import os, parefg\n"
+        "from mpi4py import MPI\n"
+        "MPI.COMM_WORLD.barrier()\n"
+        "base = os.environ['OMPI_MCA_orte_tmpdir_base']\n"
+        "print(base, ' '.join(sorted(os.listdir(base))))\n"
+    )
+    bases = []
+    for _ in range(2):
+        result = subprocess.run(
+            [sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=120
+        )
+        assert result.returncode == 0, result.stderr
+        base, used = result.stdout.split()
+        assert used.startswith("ompi."), used  # Open MPI's session directory is in it
+        assert not Path(base).exists()  # removed at exit
+        bases.append(base)
+    assert bases[0] != bases[1]
+
+
+def test_a_base_the_user_chose_is_kept():
+    env = {"OMPI_MCA_orte_tmpdir_base": "/scratch"}
+    probe = "import os, parefg; print(os.environ['OMPI_MCA_orte_tmpdir_base'])"
+    result = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        env={**{k: v for k, v in mpi_env().items() if not k.startswith("OMPI_MCA_ess")}, **env},
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "/scratch"
