@@ -24,6 +24,7 @@ from parefg.timestepping.initial import InitialState
 from parefg.timestepping.linear_solver import LinearStepSolver
 from parefg.timestepping.loads import ExternalLoads
 from parefg.timestepping.schemes import State, make_scheme, relative_errors
+from parefg.timestepping.shared_jacobian import SharedConstant
 from parefg.timestepping.step_checks import StepChecks, stored_energy
 from parefg.timestepping.step_solver import ContactStepSolver
 
@@ -31,6 +32,8 @@ from parefg.timestepping.step_solver import ContactStepSolver
 # the kept shape gradients (domain_assembly.KEEP_GRADIENT_BYTES), memory that matters only on
 # large clouds, where the MLS pass that builds it again for the error norms is a small cost.
 RELEASE_VALUE_BYTES = 16_000_000
+#: A_const this large (CSR bytes on some rank) is kept in the contact Jacobian's storage
+SHARED_JACOBIAN_BYTES = 16_000_000
 
 
 class Simulation(InitialState, EnergyLedger, StepChecks):
@@ -63,13 +66,19 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self.timings: dict[str, float] = {"assembly": 0.0, "solve": 0.0, "output": 0.0}
         with phase(self.timings, "assembly"):
             self.loads = ExternalLoads(comm, disc, scene, self.guard)
-            self.a_const = self._a_const()
+            self.a_const: PETSc.Mat | SharedConstant = self._a_const()
             self.solver: LinearStepSolver | ContactStepSolver
             method, symmetric = scene.solver.method, disc.symmetric
             if self.law is None:
                 self.solver = LinearStepSolver(comm, self.a_const, method, symmetric)
             else:
-                self.solver = _contact_solver(comm, self.a_const, self.law, method, symmetric)
+                shared = self._shared_rows(self.a_const)
+                self.solver = _contact_solver(
+                    comm, self.a_const, self.law, method, symmetric, shared
+                )
+                if shared is not None:  # A_const lives on in the Jacobian's storage
+                    self.a_const.destroy()
+                self.a_const = self.solver.a_const
             self.rigid_modes = self._rigid_mode_check()
         self.history: list[dict[str, float]] = []
         self._energy_budget = [0.0, 0.0]  # initial stored energy, largest |external work|
@@ -101,6 +110,16 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         a_const.setOption(PETSc.Mat.Option.SPD, self.disc.symmetric)
         a_const.setNearNullSpace(self._rigid_body_modes(a_const))
         return a_const
+
+    def _shared_rows(self, a_const: PETSc.Mat) -> np.ndarray | None:
+        """This rank's Gamma_C rows when A_const holds SHARED_JACOBIAN_BYTES or more on some
+        rank (the contact Jacobian then keeps A_const in its storage, one DOF matrix less:
+        parefg.timestepping.shared_jacobian), else None: a small run keeps its copy and
+        the Jacobian's rebuilds stay plain copies.  Collective."""
+        held = 12 * a_const.getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]
+        if self.comm.allreduce(held, op=MPI.MAX) < SHARED_JACOBIAN_BYTES:
+            return None
+        return np.flatnonzero(np.diff(self.disc.contact_pattern.indptr))
 
     def _rigid_body_modes(self, matrix: PETSc.Mat) -> PETSc.NullSpace:
         """Translations and the rotation in nodal parameters, for GAMG (-pc_type gamg).
@@ -348,9 +367,9 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
 
 
 def _contact_solver(
-    comm, a_const: PETSc.Mat, law: ContactLaw, method: str, symmetric: bool
+    comm, a_const: PETSc.Mat, law: ContactLaw, method: str, symmetric: bool, shared_rows=None
 ) -> ContactStepSolver:
     """The Newton step solver, with the Coulomb fixed point around it when a part needs it."""
     if law.has_coulomb:
-        return CoulombStepSolver(comm, a_const, law, method, symmetric)
-    return ContactStepSolver(comm, a_const, law, method, symmetric)
+        return CoulombStepSolver(comm, a_const, law, method, symmetric, shared_rows)
+    return ContactStepSolver(comm, a_const, law, method, symmetric, shared_rows)

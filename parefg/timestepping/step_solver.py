@@ -69,6 +69,7 @@ from parefg.timestepping.linear_solver import (
     set_ksp_tolerance,
     step_scale,
 )
+from parefg.timestepping.shared_jacobian import SharedConstant
 
 Reason = PETSc.SNES.ConvergedReason
 
@@ -105,17 +106,26 @@ class ContactStepSolver:
         law,
         method: str = DEFAULT_SOLVER_METHOD,
         symmetric: bool = True,
+        shared_rows: np.ndarray | None = None,
     ):
-        self.comm, self.a_const, self.law = comm, a_const, law
+        """``shared_rows``: the local Gamma_C rows, to keep A_const in the Jacobian's
+        storage (:class:`~parefg.timestepping.shared_jacobian.SharedConstant`; the
+        caller then uses ``self.a_const``, not the matrix it gave); None: J is a copy."""
+        self.comm, self.law = comm, law
         self.method = SOLVER_METHODS[method]
         self.symmetric = symmetric  # A_const's symmetry (False with VCI): the factorization
-        self.jacobian = a_const.duplicate(copy=True)
-        # GAMG needs the rigid-body modes on the matrix it is built from
-        self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
+        self.a_const: PETSc.Mat | SharedConstant
+        if shared_rows is None:
+            self.a_const, self.jacobian = a_const, a_const.duplicate(copy=True)
+            # GAMG needs the rigid-body modes on the matrix it is built from
+            self.jacobian.setNearNullSpace(a_const.getNearNullSpace())
+        else:  # the caller lets a_const go: J and a strip of A_const's rows are kept
+            self.a_const = SharedConstant(comm, a_const, shared_rows)
+            self.jacobian = self.a_const.jacobian
         self.b = a_const.createVecRight()
         # A_const x of the last x it was formed for: the step scale's A u_0 is the first
         # residual's, the line search's A x - b at x is the residual's just computed at x
-        self._products = ReusedProduct(comm, a_const)
+        self._products = ReusedProduct(comm, self.a_const)
         # work vectors of the line search, the residual check and the energy, allocated once
         self._direction, self._product, self._smooth, self._check, self._update = (
             a_const.createVecRight() for _ in range(5)
@@ -212,8 +222,12 @@ class ContactStepSolver:
         changed = varying or built is None or not np.array_equal(active, built)
         if not self.comm.allreduce(changed):
             return  # same matrix: PETSc keeps the factorization
-        self.a_const.copy(self.jacobian, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        add_owned_rows(self.jacobian, self.law.jacobian_rows(un, ut))
+        contact_rows = self.law.jacobian_rows(un, ut)
+        if isinstance(self.a_const, SharedConstant):
+            self.a_const.set_jacobian(contact_rows)
+        else:
+            self.a_const.copy(self.jacobian, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            add_owned_rows(self.jacobian, contact_rows)
         self._signature = None if varying else active
         self.jacobian_builds += 1
 
@@ -439,7 +453,7 @@ class ReusedProduct:
     bits as a new product).  A must not change while the object is used.
     """
 
-    def __init__(self, comm, matrix: PETSc.Mat):
+    def __init__(self, comm, matrix: PETSc.Mat | SharedConstant):
         self.comm, self.matrix = comm, matrix
         self._input, self._output = matrix.createVecRight(), matrix.createVecLeft()
         self._valid = False  # the same on every rank: set by collective calls only
