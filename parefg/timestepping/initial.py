@@ -138,11 +138,13 @@ class InitialState:
         operator.setOption(PETSc.Mat.Option.SPD, symmetric)
         operator.setNearNullSpace(self._rigid_body_modes(operator))
         solver: LinearStepSolver | ContactStepSolver
-        method = self.scene.solver.method
+        method, degree = self.scene.solver.method, self.scene.discretization.degree
         if self.law is None:
-            solver = LinearStepSolver(self.comm, operator, method, symmetric)
+            solver = LinearStepSolver(self.comm, operator, method, symmetric, degree)
         else:  # the bound is still 0
-            solver = ContactStepSolver(self.comm, operator, self.law, method, symmetric)
+            solver = ContactStepSolver(
+                self.comm, operator, self.law, method, symmetric, degree=degree
+            )
         try:
             if self.law is None:
                 solver.solve(rhs, u, 0.0)

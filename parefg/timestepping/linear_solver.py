@@ -37,13 +37,19 @@ class SolverMethod:
     ``step`` are options of the step KSP (read unprefixed: ``ksp_type``, ``pc_type``, ...),
     ``mass`` those of the mass KSP (read with prefix ``mass_``), both without the prefix.
     ``scaled_tolerance``: the step KSP stops at KSP_TOLERANCE_FRACTION of the step
-    tolerance, unless -ksp_atol is given.
+    tolerance, unless -ksp_atol is given.  ``step_by_degree``: the step options that
+    replace ``step`` for an MLS degree (see :meth:`step_options`).
     """
 
     name: str
     step: dict[str, str] = field(default_factory=dict)
     mass: dict[str, str] = field(default_factory=dict)
     scaled_tolerance: bool = False
+    step_by_degree: dict[int, dict[str, str]] = field(default_factory=dict)
+
+    def step_options(self, degree: int | None = None) -> dict[str, str]:
+        """The step KSP's options for MLS degree ``degree`` (None: the method's own)."""
+        return self.step_by_degree.get(degree, self.step) if degree is not None else self.step
 
 
 # Measured (square, step Jacobian, CG to 1e-8; scripts/bench/bench_iterative.py): a
@@ -74,6 +80,24 @@ _AMG = {
     "mg_levels_ksp_type": "chebyshev",
     "mg_levels_pc_type": "jacobi",
 }
+# At m = 3 (s = 3.2) the oscillating near-null vectors are a band of high frequencies (the
+# smallest eigenvalues of the Jacobi-scaled step Jacobian are checkerboard patterns times
+# smooth functions): GAMG's counts grow 1.4x per halving of h (246, 346, 416, 423 at h =
+# 1/16 ... 1/128, CG to 1e-8 on the step Jacobian).  Local solves on overlapping patches
+# remove them: hypre BoomerAMG with its Schwarz smoothers on the three finest levels takes
+# 11, 36, 26, 24 (a strength threshold of 0.7 for the 2D vector problem); measured with
+# scripts/bench/bench_iterative.py and a study of the options (README, iterative solver).
+_AMG_SCHWARZ = {
+    "ksp_type": "cg",
+    "ksp_norm_type": "unpreconditioned",
+    "ksp_rtol": "1e-8",
+    "ksp_max_it": "10000",
+    "pc_type": "hypre",
+    "pc_hypre_type": "boomeramg",
+    "pc_hypre_boomeramg_strong_threshold": "0.7",
+    "pc_hypre_boomeramg_smooth_type": "Schwarz-smoothers",
+    "pc_hypre_boomeramg_smooth_num_levels": "3",
+}
 # The mass matrix is SPD with no near-null space: CG + Jacobi.  Measured (true residual
 # to 1e-13, where it stalls near 1e-11): 76 iterations at s = 2.2 (m = 2, h = 1/64), but
 # 4809 / 9524 at the default s = 3.2 (h = 1/32, 1/64) and 10102 at m = 3 (h = 1/32); GAMG
@@ -88,7 +112,9 @@ _MASS = {
 #: solver method name -> its option set; the scene schema reads the names
 SOLVER_METHODS = {
     "direct": SolverMethod("direct"),
-    "iterative": SolverMethod("iterative", step=_AMG, mass=_MASS, scaled_tolerance=True),
+    "iterative": SolverMethod(
+        "iterative", step=_AMG, mass=_MASS, scaled_tolerance=True, step_by_degree={3: _AMG_SCHWARZ}
+    ),
 }
 DEFAULT_SOLVER_METHOD = "direct"
 
@@ -240,13 +266,15 @@ class LinearStepSolver:
         a_const: PETSc.Mat,
         method: str = DEFAULT_SOLVER_METHOD,
         symmetric: bool = True,
+        degree: int | None = None,
     ):
+        """``degree``: the MLS degree, whose step options the method may choose."""
         self.a_const = a_const
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setOperators(a_const)
         configure_linear_solver(self.ksp, symmetric)
         # the step's options are the unprefixed ones (-ksp_type, as for the contact step)
-        set_from_options(self.ksp, "", SOLVER_METHODS[method].step)
+        set_from_options(self.ksp, "", SOLVER_METHODS[method].step_options(degree))
         self.scaled_tolerance = scaled_ksp_tolerance(SOLVER_METHODS[method])
         check_symmetric_use(self.ksp, symmetric)
         check_factorization(self.ksp, a_const)

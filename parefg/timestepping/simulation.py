@@ -69,12 +69,13 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             self.a_const: PETSc.Mat | SharedConstant = self._a_const()
             self.solver: LinearStepSolver | ContactStepSolver
             method, symmetric = scene.solver.method, disc.symmetric
+            degree = scene.discretization.degree
             if self.law is None:
-                self.solver = LinearStepSolver(comm, self.a_const, method, symmetric)
+                self.solver = LinearStepSolver(comm, self.a_const, method, symmetric, degree)
             else:
                 shared = self._shared_rows(self.a_const)
                 self.solver = _contact_solver(
-                    comm, self.a_const, self.law, method, symmetric, shared
+                    comm, self.a_const, self.law, method, symmetric, shared, degree
                 )
                 if shared is not None:  # A_const lives on in the Jacobian's storage
                     self.a_const.destroy()
@@ -367,9 +368,8 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
 
 
 def _contact_solver(
-    comm, a_const: PETSc.Mat, law: ContactLaw, method: str, symmetric: bool, shared_rows=None
+    comm, a_const: PETSc.Mat, law: ContactLaw, method: str, symmetric: bool, shared_rows, degree
 ) -> ContactStepSolver:
     """The Newton step solver, with the Coulomb fixed point around it when a part needs it."""
-    if law.has_coulomb:
-        return CoulombStepSolver(comm, a_const, law, method, symmetric, shared_rows)
-    return ContactStepSolver(comm, a_const, law, method, symmetric, shared_rows)
+    solver = CoulombStepSolver if law.has_coulomb else ContactStepSolver
+    return solver(comm, a_const, law, method, symmetric, shared_rows, degree)

@@ -107,12 +107,15 @@ class ContactStepSolver:
         method: str = DEFAULT_SOLVER_METHOD,
         symmetric: bool = True,
         shared_rows: np.ndarray | None = None,
+        degree: int | None = None,
     ):
-        """``shared_rows``: the local Gamma_C rows, to keep A_const in the Jacobian's
+        """``degree``: the MLS degree, whose step options the method may choose.
+        ``shared_rows``: the local Gamma_C rows, to keep A_const in the Jacobian's
         storage (:class:`~parefg.timestepping.shared_jacobian.SharedConstant`; the
         caller then uses ``self.a_const``, not the matrix it gave); None: J is a copy."""
         self.comm, self.law = comm, law
         self.method = SOLVER_METHODS[method]
+        self._step_options = self.method.step_options(degree)
         self.symmetric = symmetric  # A_const's symmetry (False with VCI): the factorization
         self.a_const: PETSc.Mat | SharedConstant
         if shared_rows is None:
@@ -171,7 +174,7 @@ class ContactStepSolver:
         # petsc4py 3.18 has no SNES.getLineSearch, so the default line search is offered
         # through the options database while this SNES reads it, and removed after
         # (and the solver method's KSP options, read by the SNES's KSP)
-        set_from_options(snes, "", {"snes_linesearch_type": "basic", **self.method.step})
+        set_from_options(snes, "", {"snes_linesearch_type": "basic", **self._step_options})
         check_symmetric_use(snes.getKSP(), self.symmetric)
         check_factorization(snes.getKSP(), self.jacobian)
         return snes
