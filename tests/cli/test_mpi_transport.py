@@ -40,19 +40,21 @@ def test_what_the_user_set_wins():
 def test_the_choice_is_made_before_mpi_starts_and_mpi_runs_with_it():
     """A fresh interpreter importing parefg then MPI: the variables are set and Open MPI
     came up with them (a wrong value would fail MPI_Init)."""
+    result = _fresh_singleton("print(os.environ['OMPI_MCA_pml'], MPI.COMM_WORLD.size)")
+    assert result.stdout.split() == ["ob1", "1"]
+
+
+def _fresh_singleton(line: str) -> subprocess.CompletedProcess:
+    """A new interpreter that imports parefg, starts MPI, then runs ``line`` (os and MPI
+    imported); none of the settings under test inherited.  Asserts it succeeded."""
     env = {key: value for key, value in mpi_env().items() if key != "OMPI_MCA_pml"}
     env.pop("OMPI_MCA_ess_singleton_isolated", None)
-    probe = (
-        "import os, parefg\n"
-        "from mpi4py import MPI\n"
-        "MPI.COMM_WORLD.barrier()\n"
-        "print(os.environ['OMPI_MCA_pml'], MPI.COMM_WORLD.size)\n"
-    )
+    probe = f"import os, parefg\nfrom mpi4py import MPI\nMPI.COMM_WORLD.barrier()\n{line}\n"
     result = subprocess.run(
         [sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=120
     )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.split() == ["ob1", "1"]
+    return result
 
 
 @pytest.mark.serial_only
@@ -60,22 +62,10 @@ def test_a_singleton_keeps_its_session_directory_to_itself_and_removes_it():
     """Isolated singletons all name their session directory jf.0: each parefg singleton
     gets its own base for it (two processes starting at once raced to create the shared
     one), used by Open MPI and removed when the process ends."""
-    env = {key: value for key, value in mpi_env().items() if key != "OMPI_MCA_pml"}
-    env.pop("OMPI_MCA_ess_singleton_isolated", None)
-    probe = (
-        "import os, parefg\n"
-        "from mpi4py import MPI\n"
-        "MPI.COMM_WORLD.barrier()\n"
-        "base = os.environ['OMPI_MCA_orte_tmpdir_base']\n"
-        "print(base, ' '.join(sorted(os.listdir(base))))\n"
-    )
+    line = "base = os.environ['OMPI_MCA_orte_tmpdir_base']; print(base, *os.listdir(base))"
     bases = []
     for _ in range(2):
-        result = subprocess.run(
-            [sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=120
-        )
-        assert result.returncode == 0, result.stderr
-        base, used = result.stdout.split()
+        base, used = _fresh_singleton(line).stdout.split()
         assert used.startswith("ompi."), used  # Open MPI's session directory is in it
         assert not Path(base).exists()  # removed at exit
         bases.append(base)
