@@ -37,6 +37,14 @@ from parefg.discretization.quadrature import Quadrature
 # Points per block: bounds the block's shape arrays and pairs (tens of MB at m = 2).
 BLOCK_POINTS = 65536
 
+# The value operator S is not built during the build from this size (CSR bytes on some
+# rank) on: its arrays and their PETSc copy were the build's peak (m = 2, 8 x 8 points:
+# ~7-10 KB per DOF each); an integration against the shape functions then takes MLS values
+# block by block (PointGradients.integrate_values), one MLS pass each (the load vectors,
+# the initial state: 2-4 at the start of a run).  Below it S is built with the Gram data
+# (no extra pass) and released for the time loop from 16 MB on (simulation.py).
+BUILT_VALUE_BYTES = 128_000_000
+
 # The kept gradients of a small domain (20 bytes per point and padded neighbour, per rank):
 # their MLS costs more than their memory only on small clouds, where the fixed costs matter.
 KEEP_GRADIENT_BYTES = 16_000_000
@@ -50,9 +58,11 @@ class DomainOperators:
     indices: np.ndarray  # (nnz,) sorted within each row
     mass: np.ndarray  # (nnz, 1, 1) int rho phi_I phi_J
     gradient_gram: np.ndarray  # (nnz, 2, 2) int d_a phi_I d_b phi_J
-    value_indptr: np.ndarray  # (n_points + 1,) CSR of S (n_points x n_nodes)
-    value_indices: np.ndarray  # (n_slots,) int32 nodes
-    value_data: np.ndarray  # (n_slots,) phi
+    # CSR of S (n_points x n_nodes): (n_points + 1,), (n_slots,) int32 nodes, (n_slots,) phi;
+    # None when fill() was asked not to build S
+    value_indptr: np.ndarray | None
+    value_indices: np.ndarray | None
+    value_data: np.ndarray | None
     condition_range: tuple[float, float]  # min, max MLS moment condition number
     gradients: list[tuple[np.ndarray, np.ndarray]] | None  # sorted_gradients per block, if kept
 
@@ -195,8 +205,10 @@ class BlockPasses:
             if len(self.blocks) == 1:  # pass 2 takes both again
                 self.searched[index], self.shapes[index] = found, shape
 
-    def fill(self, rho: float, indptr, indices, row_lengths, correction=None) -> DomainOperators:
-        """Pass 2: MLS per block, its Gram contributions and its rows of S.
+    def fill(
+        self, rho: float, indptr, indices, row_lengths, correction=None, values: bool = True
+    ) -> DomainOperators:
+        """Pass 2: MLS per block, its Gram contributions and (with ``values``) its rows of S.
 
         ``correction`` (the (n_nodes, 2, n_p) coefficients of
         :func:`~.consistent_gradients.node_corrections`) makes the test functions'
@@ -209,7 +221,8 @@ class BlockPasses:
         with timer("assembly"):
             mass = np.zeros((len(indices), 1, 1))
             gradient_gram = np.zeros((len(indices), 2, 2))
-            value_indptr = np.concatenate([[0], np.cumsum(row_lengths)])
+            lengths = row_lengths if values else np.zeros(0, dtype=np.int64)
+            value_indptr = np.concatenate([[0], np.cumsum(lengths)])
             value_indices = np.empty(value_indptr[-1], dtype=np.int32)
             value_data = np.empty(value_indptr[-1])
         low, high = np.inf, 0.0
@@ -245,12 +258,20 @@ class BlockPasses:
                     test, dphi, np.ascontiguousarray(weights), *common, gradient_gram, local_of
                 )
                 slots = sorted_slots(shape, n_nodes)
-                piece = value_operator(shape, n_nodes, slots)  # the block's rows, columns sorted
-                value_indices[value_indptr[first] : value_indptr[last]] = piece.indices
-                value_data[value_indptr[first] : value_indptr[last]] = piece.data
+                if values:
+                    piece = value_operator(shape, n_nodes, slots)  # block's rows, sorted columns
+                    value_indices[value_indptr[first] : value_indptr[last]] = piece.indices
+                    value_data[value_indptr[first] : value_indptr[last]] = piece.data
                 if keep:
                     kept.append(sorted_gradients(shape, n_nodes, slots))
-        values = (value_indptr, value_indices, value_data)
         return DomainOperators(
-            indptr, indices, mass, gradient_gram, *values, (low, high), kept if keep else None
+            indptr,
+            indices,
+            mass,
+            gradient_gram,
+            value_indptr=value_indptr if values else None,
+            value_indices=value_indices if values else None,
+            value_data=value_data if values else None,
+            condition_range=(low, high),
+            gradients=kept if keep else None,
         )

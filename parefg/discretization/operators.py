@@ -22,7 +22,7 @@ from parefg.discretization.boundary_operators import BoundaryOperators
 from parefg.discretization.budget import Budget, check_problem_size
 from parefg.discretization.consistent_gradients import ConsistencySums, node_corrections
 from parefg.discretization.dirichlet import DirichletPart
-from parefg.discretization.domain_assembly import BlockPasses, value_rows
+from parefg.discretization.domain_assembly import BUILT_VALUE_BYTES, BlockPasses, value_rows
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients, sorted_gradients
 from parefg.discretization.point_set import PointSet, point_operator
@@ -189,8 +189,12 @@ class _Builder(BoundaryOperators):
             self._boundary_consistency_sums(sums)
             with phase(self.timings, "assembly"):
                 correction = node_corrections(self.comm, sums, self.node_ranges)
+        # S only where it is small on every rank (BUILT_VALUE_BYTES; see PointSet.integrate)
+        values = self.comm.allreduce(12 * int(row_lengths.sum()), op=MPI.MAX) < BUILT_VALUE_BYTES
         operators = self._collectively(
-            lambda: passes.fill(scene.material.rho, indptr, indices, row_lengths, correction)
+            lambda: passes.fill(
+                scene.material.rho, indptr, indices, row_lengths, correction, values
+            )
         )
         if len(quadrature.points):
             self.conditions.append(np.array(operators.condition_range))
@@ -209,7 +213,9 @@ class _Builder(BoundaryOperators):
                 points=quadrature.points,
                 weights=quadrature.weights,
                 normals=None,
-                values=point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes),
+                values=point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes)
+                if values
+                else None,
                 gradients=PointGradients(
                     self.mls, quadrature.points, keep=False, kept=operators.gradients
                 ),

@@ -103,6 +103,11 @@ class PointSet:
             self.values = self.rebuild(self.restore_points()[0])
         return self.values
 
+    def ensure_values(self) -> None:
+        """Build the value operator if it was not built or was released (for a caller that
+        integrates at every step).  Collective."""
+        self._operator()
+
     def _work(self) -> tuple[PETSc.Mat, PETSc.Vec, PETSc.Vec]:
         """(the value operator, a point vector, a node vector).  Collective."""
         values = self._operator()
@@ -148,9 +153,15 @@ class PointSet:
     def integrate(self, density: np.ndarray, out: PETSc.Vec) -> None:
         """out = int density . phi_I = S^T (w density) per component; density (n_points, 2).
 
-        Collective.
+        Without a value operator (not built for a large domain, or released) the MLS values
+        are evaluated block by block (:meth:`PointGradients.integrate_values`), one MLS
+        pass per call: a caller integrating at every step builds the operator first
+        (:meth:`ensure_values`).  Collective.
         """
         _, weights = self.restore_points()
+        if self.values is None and self.gradients is not None:
+            self.gradients.integrate_values(density * weights[:, None], out)
+            return
         values, point_vec, node_vec = self._work()
         dofs = np.empty(2 * node_vec.getLocalSize())
         for component in range(2):

@@ -66,6 +66,8 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self.timings: dict[str, float] = {"assembly": 0.0, "solve": 0.0, "output": 0.0}
         with phase(self.timings, "assembly"):
             self.loads = ExternalLoads(comm, disc, scene, self.guard)
+            if self.loads.integrates_domain:  # every step integrates f against S
+                disc.domain.ensure_values()
             self.a_const: PETSc.Mat | SharedConstant = self._a_const()
             self.solver: LinearStepSolver | ContactStepSolver
             method, symmetric = scene.solver.method, disc.symmetric
@@ -205,7 +207,10 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         by their next use.  Collective.
         """
         domain = self.disc.domain
-        if not self.loads.integrates_domain and domain.release_values(RELEASE_VALUE_BYTES):
+        if self.loads.integrates_domain:
+            return
+        # a large domain's S was never built (domain_assembly.BUILT_VALUE_BYTES)
+        if domain.values is None or domain.release_values(RELEASE_VALUE_BYTES):
             domain.release_points()  # 24 bytes per point, computed again by a later use
 
     def resume(self, state: State, step: int, last_row: dict) -> State:

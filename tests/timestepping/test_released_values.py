@@ -4,15 +4,18 @@ S[q, I] = phi_I(x_q) at the domain's Gauss points is the largest point operator 
 DOF at m = 2 with 8 x 8 points); once the load vectors and the initial state exist, only
 the error norms at the end use it (and a body force that is integrated at every step).
 Large operators are released by Simulation.start; the norms then take u_h from MLS values
-block by block, and an integration builds S again on the build's blocks of points.  These
-tests force the release on small clouds (the threshold set to 0).
+block by block, and so does an integration (S^T w f: PointGradients.integrate_values);
+S is built again on the build's blocks only for a body force integrated at every step.  A
+domain whose S would be large (domain_assembly.BUILT_VALUE_BYTES) never builds it: its
+load vectors and initial state come from MLS values block by block too.  These tests
+force both on small clouds (the thresholds set to 0).
 """
 
 import numpy as np
 import pytest
 from mpi4py import MPI
 
-from parefg.discretization import domain_assembly
+from parefg.discretization import domain_assembly, operators
 from parefg.run import prepare
 from parefg.timestepping import simulation
 
@@ -85,7 +88,7 @@ def test_a_body_force_evaluated_as_written_gets_the_points_back(monkeypatch):
     expected = datum._direct({"x": built[:, 0], "y": built[:, 1]}, 0.1)
     np.testing.assert_array_equal(values, expected)  # at the points the run was built on
     vector = sim.disc.create_vec()
-    sim.loads.forces_terms[0].integrate(values, vector)  # S built again on the points
+    sim.loads.forces_terms[0].integrate(values, vector)  # MLS values block by block
     assert np.isfinite(vector.norm())
 
 
@@ -100,3 +103,55 @@ def test_small_operators_are_kept_by_default():
     sim = prepare(COMM, "square", CASES["m2"])
     sim.start()
     assert sim.disc.domain.values is not None  # a few KB: not worth an MLS pass
+
+
+def _unbuilt_run(overrides, build: bool, monkeypatch):
+    """(the domain's S after prepare, final u, errors, sim) with S built or not; the sim
+    records whether the Gauss points were released for the loop."""
+    monkeypatch.setattr(operators, "BUILT_VALUE_BYTES", 10**15 if build else 0)
+    sim = prepare(COMM, "square", overrides)
+    built = sim.disc.domain.values
+    state = sim.start()
+    sim.points_released = sim.disc.domain.points is None
+    for n in range(1, sim.scene.time.n_steps + 1):
+        state = sim.step(state, n)
+    u = state.u.getArray(readonly=True).copy()
+    return built, u, sim.errors(state.u, sim.scene.time.T), sim
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_a_domain_without_its_value_operator_gives_the_same_run(case, monkeypatch):
+    """Load vectors and the initial state from MLS values block by block instead of S^T:
+    the same sums in another order, so the run agrees to round-off."""
+    built, u_built, errors_built, _ = _unbuilt_run(CASES[case], True, monkeypatch)
+    unbuilt, u_unbuilt, errors_unbuilt, sim = _unbuilt_run(CASES[case], False, monkeypatch)
+    assert built is not None and unbuilt is None
+    assert sim.points_released  # for the loop, as with a released S
+    scale = COMM.allreduce(float(np.abs(u_built).max()), op=MPI.MAX)
+    assert COMM.allreduce(float(np.abs(u_unbuilt - u_built).max()), op=MPI.MAX) <= 1e-11 * scale
+    for name, value in errors_built.items():
+        assert errors_unbuilt[name] == pytest.approx(value, rel=1e-9)
+
+
+def test_block_integration_is_s_transpose(monkeypatch):
+    """PointSet.integrate without S equals S^T (w density) to round-off, ghost nodes (other
+    ranks' nodes that this rank's points reach) included."""
+    sim = prepare(COMM, "square", CASES["m2"])
+    domain = sim.disc.domain
+    points, weights = domain.points, domain.weights
+    density = np.column_stack([np.sin(3 * points[:, 0]) * points[:, 1], np.cos(points[:, 1])])
+    with_s, without_s = sim.disc.create_vec(), sim.disc.create_vec()
+    domain.integrate(density, with_s)
+    domain.gradients.integrate_values(density * weights[:, None], without_s)
+    without_s.axpy(-1.0, with_s)
+    assert without_s.norm() <= 1e-13 * with_s.norm()
+
+
+def test_a_body_force_integrated_per_step_builds_the_operator(monkeypatch):
+    """A force that is not time-separable is integrated at every step: S is built for it
+    before the loop, not evaluated by MLS at every step."""
+    built, _, errors, sim = _unbuilt_run([*CASES["m2"], NOT_SEPARABLE], False, monkeypatch)
+    assert sim.loads.integrates_domain
+    assert built is not None  # built at Simulation construction, from the points
+    assert sim.disc.domain.values is not None
+    assert np.isfinite(errors["h1_rel"])
