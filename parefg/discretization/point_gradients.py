@@ -138,17 +138,17 @@ class PointGradients:
                 _gradient_rows(dphi, nodal[at], grad[start:stop])
         return out if grad is None else (out, grad)
 
-    def integrate_values(self, weighted: np.ndarray, out: PETSc.Vec) -> None:
-        """out = S^T ``weighted`` per component without a value operator: ``weighted``
-        (n_points, 2) a density times the quadrature weights.  Collective.
+    def integrate_values(self, weighted: np.ndarray, outs: list[PETSc.Vec]) -> None:
+        """outs[k] = S^T ``weighted[k]`` per component without a value operator:
+        ``weighted`` (K, n_points, 2) densities times the quadrature weights.  Collective.
 
-        MLS values per block; each node's sum over this rank's points (in point order, so
-        the numbers differ from PETSc's product with S at round-off), then added into
-        ``out`` across ranks (ADD_VALUES: only the nodes this rank reaches travel).
+        One MLS pass (values) for all K; each node's sum over this rank's points (in point
+        order, so the numbers differ from PETSc's product with S at round-off), then added
+        into the vectors across ranks (ADD_VALUES: only the nodes this rank reaches travel).
         """
         points = self._points()
         n_nodes = len(self.mls.nodes)
-        sums = np.zeros((2, n_nodes))  # scratch by node (the cloud is on every rank)
+        sums = np.zeros((len(outs), 2, n_nodes))  # scratch by node (the cloud is on every rank)
         reached = np.zeros(n_nodes, dtype=bool)
         for start in range(0, len(points), BLOCK_POINTS):
             shape = self.mls.evaluate(points[start : start + BLOCK_POINTS], gradients=False)
@@ -156,14 +156,17 @@ class PointGradients:
             rows = start + np.nonzero(shape.mask)[0]
             phi = shape.phi[shape.mask]
             reached[nodes] = True
-            for c in range(2):
-                sums[c] += np.bincount(nodes, weights=phi * weighted[rows, c], minlength=n_nodes)
+            for k in range(len(outs)):
+                for c in range(2):
+                    terms = phi * weighted[k, rows, c]
+                    sums[k, c] += np.bincount(nodes, weights=terms, minlength=n_nodes)
         touched = np.flatnonzero(reached)
         dofs = (2 * touched[:, None] + np.arange(2)).ravel().astype(PETSc.IntType)
-        out.set(0.0)
-        out.setValues(dofs, sums[:, touched].T.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
-        out.assemblyBegin()
-        out.assemblyEnd()
+        for k, out in enumerate(outs):
+            out.set(0.0)
+            out.setValues(dofs, sums[k][:, touched].T.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
+            out.assemblyBegin()
+            out.assemblyEnd()
 
 
 def sorted_gradients(shape: ShapeValues, n_nodes: int, slots=None) -> tuple[np.ndarray, np.ndarray]:

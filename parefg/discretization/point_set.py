@@ -158,10 +158,21 @@ class PointSet:
         pass per call: a caller integrating at every step builds the operator first
         (:meth:`ensure_values`).  Collective.
         """
+        self.integrate_many(density[None], [out])
+
+    def integrate_many(self, densities: np.ndarray, outs: list[PETSc.Vec]) -> None:
+        """outs[k] = S^T (w densities[k]), densities (K, n_points, 2): :meth:`integrate`
+        of each, in one MLS pass when there is no value operator.  Collective."""
         _, weights = self.restore_points()
         if self.values is None and self.gradients is not None:
-            self.gradients.integrate_values(density * weights[:, None], out)
+            self.gradients.integrate_values(densities * weights[None, :, None], outs)
             return
+        for density, out in zip(densities, outs, strict=True):
+            self._integrate_with_operator(density, out)
+
+    def _integrate_with_operator(self, density: np.ndarray, out: PETSc.Vec) -> None:
+        """out = S^T (w density) by PETSc's product with S.  Collective."""
+        _, weights = self.restore_points()
         values, point_vec, node_vec = self._work()
         dofs = np.empty(2 * node_vec.getLocalSize())
         for component in range(2):

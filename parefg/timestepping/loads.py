@@ -27,15 +27,20 @@ Integrate = Callable[[np.ndarray, PETSc.Vec], None]
 class IntegratedDatum:
     """A :class:`PointDatum` and its load vector.  Construction is collective.
 
-    ``vectors`` holds the F_k of a separable datum (empty otherwise).
+    ``vectors`` holds the F_k of a separable datum (empty otherwise), integrated together
+    by ``integrate_many`` (parts (K, 2, n), vectors) when given (one MLS pass over a domain
+    without its value operator), else one by one.
     """
 
-    def __init__(self, datum: PointDatum, integrate: Integrate, create_vec):
+    def __init__(self, datum: PointDatum, integrate: Integrate, create_vec, integrate_many=None):
         self.datum, self.integrate = datum, integrate
-        self.vectors: list[PETSc.Vec] = []
-        for part in [] if datum.space is None else datum.space:
-            self.vectors.append(create_vec())
-            integrate(part, self.vectors[-1])
+        parts: np.ndarray | list = [] if datum.space is None else datum.space
+        self.vectors: list[PETSc.Vec] = [create_vec() for _ in parts]
+        if integrate_many is not None and len(parts):
+            integrate_many(parts, self.vectors)
+            return
+        for part, vector in zip(parts, self.vectors, strict=True):
+            integrate(part, vector)
 
     def add(self, t: float, out: PETSc.Vec, work: PETSc.Vec) -> None:
         """out += the load of the datum at t (``work``: a scratch vector).  Collective."""
@@ -62,7 +67,11 @@ class ExternalLoads:
         force = PointDatum(
             guard, ("loads", "f"), scene.loads.f, *_coordinates(domain.points), comm=comm
         )
-        self.forces_terms = [IntegratedDatum(force, _point_integral(domain), disc.create_vec)]
+        self.forces_terms = [
+            IntegratedDatum(
+                force, _point_integral(domain), disc.create_vec, _point_integrals(domain)
+            )
+        ]
         # f_k at every Gauss point (~1 KB per DOF at m = 2) are integrated; the points
         # themselves may be released by the domain (Simulation.start)
         force.release_space(again=lambda: _coordinates(domain.restore_points()[0]))
@@ -138,6 +147,12 @@ def _coordinates(points: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]
 def _point_integral(points) -> Integrate:
     """values (2, n) -> S^T (w values) per component on a PointSet."""
     return lambda values, out: points.integrate(values.T, out)
+
+
+def _point_integrals(points):
+    """parts (K, 2, n), outs -> :func:`_point_integral` of each, together (PointSet's
+    integrate_many: one MLS pass without a value operator)."""
+    return lambda parts, outs: points.integrate_many(np.swapaxes(parts, 1, 2), outs)
 
 
 def _dirichlet_integral(part) -> Integrate:

@@ -142,7 +142,7 @@ def test_block_integration_is_s_transpose(monkeypatch):
     density = np.column_stack([np.sin(3 * points[:, 0]) * points[:, 1], np.cos(points[:, 1])])
     with_s, without_s = sim.disc.create_vec(), sim.disc.create_vec()
     domain.integrate(density, with_s)
-    domain.gradients.integrate_values(density * weights[:, None], without_s)
+    domain.gradients.integrate_values((density * weights[:, None])[None], [without_s])
     without_s.axpy(-1.0, with_s)
     assert without_s.norm() <= 1e-13 * with_s.norm()
 
@@ -155,3 +155,22 @@ def test_a_body_force_integrated_per_step_builds_the_operator(monkeypatch):
     assert built is not None  # built at Simulation construction, from the points
     assert sim.disc.domain.values is not None
     assert np.isfinite(errors["h1_rel"])
+
+
+def test_the_load_vectors_of_a_separable_force_take_one_mls_pass(monkeypatch):
+    """The square's body force has two space parts f_k: without S, their F_k come from one
+    MLS pass over the Gauss points, not one each."""
+    from parefg.discretization import point_gradients
+
+    monkeypatch.setattr(operators, "BUILT_VALUE_BYTES", 0)
+    passes = []
+    integrate = point_gradients.PointGradients.integrate_values
+
+    def counted(self, weighted, outs):
+        passes.append(len(outs))
+        integrate(self, weighted, outs)
+
+    monkeypatch.setattr(point_gradients.PointGradients, "integrate_values", counted)
+    sim = prepare(COMM, "square", CASES["m2"])
+    assert len(sim.loads.forces_terms[0].vectors) == 2
+    assert passes == [2]
