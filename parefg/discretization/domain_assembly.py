@@ -37,13 +37,6 @@ from parefg.discretization.quadrature import Quadrature
 # Points per block: bounds the block's shape arrays and pairs (tens of MB at m = 2).
 BLOCK_POINTS = 65536
 
-# The value operator S is not built during the build from this size (CSR bytes on some
-# rank) on: its arrays and their PETSc copy were the build's peak (m = 2, 8 x 8 points:
-# ~7-10 KB per DOF each); an integration against the shape functions then takes MLS values
-# block by block (PointGradients.integrate_values), one MLS pass each (the load vectors,
-# the initial state: 2-4 at the start of a run).  Below it S is built with the Gram data
-# (no extra pass) and released for the time loop from 16 MB on (simulation.py).
-BUILT_VALUE_BYTES = 128_000_000
 
 # The kept gradients of a small domain (20 bytes per point and padded neighbour, per rank):
 # their MLS costs more than their memory only on small clouds, where the fixed costs matter.

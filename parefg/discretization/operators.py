@@ -22,11 +22,12 @@ from parefg.discretization.boundary_operators import BoundaryOperators
 from parefg.discretization.budget import Budget, check_problem_size
 from parefg.discretization.consistent_gradients import ConsistencySums, node_corrections
 from parefg.discretization.dirichlet import DirichletPart
-from parefg.discretization.domain_assembly import BUILT_VALUE_BYTES, BlockPasses, value_rows
+from parefg.discretization.domain_assembly import BlockPasses, value_rows
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients, sorted_gradients
 from parefg.discretization.point_set import PointSet, point_operator
 from parefg.discretization.quadrature import Quadrature, cell_quadrature
+from parefg.discretization.size_estimate import BUILT_VALUE_BYTES
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.distribute import partition_on_root
 from parefg.geometry.gmsh_mesh import build_node_cloud

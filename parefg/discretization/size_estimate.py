@@ -52,6 +52,14 @@ PAIR_BYTES = 18  # per coupled node pair of one cell (Gram assembly, transient)
 ENTRY_BYTES = 60  # per nonzero of the DOF matrices (M, K, A_const, Jacobian; PETSc)
 FACTOR_BYTES = 12  # per nonzero of the Cholesky factor (MUMPS), direct solvers only
 
+# The domain's value operator S is not built from this size (CSR bytes on some rank) on:
+# its arrays and their PETSc copy were the build's peak (m = 2, 8 x 8 points: ~7-10 KB per
+# DOF each); an integration against the shape functions then takes MLS values block by
+# block (PointGradients.integrate_values), one MLS pass each (2-4 at the start of a run).
+# Below it S is built with the Gram data (no extra pass) and released for the time loop
+# from 16 MB on (simulation.py).  The estimate then drops the domain points' slots.
+BUILT_VALUE_BYTES = 128_000_000
+
 
 @dataclass(frozen=True)
 class Size:
@@ -103,6 +111,9 @@ def memory_per_rank(size: Size, n_ranks: int, direct: bool = True) -> float:
     an iterative one (CG + GAMG) keeps no factor.
     """
     gradient_points = size.n_domain_points + size.n_nodes
+    # S's entries: the padded lists' mean (the most padded shape's, 1.8); unbuilt if large
+    if 12 * size.n_domain_points * size.neighbours / 1.8 / n_ranks >= BUILT_VALUE_BYTES:
+        gradient_points = size.n_nodes
     shared = (
         GRADIENT_SLOT_BYTES * gradient_points * size.neighbours
         + VALUE_SLOT_BYTES * size.n_boundary_points * size.neighbours

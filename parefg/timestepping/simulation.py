@@ -209,7 +209,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         domain = self.disc.domain
         if self.loads.integrates_domain:
             return
-        # a large domain's S was never built (domain_assembly.BUILT_VALUE_BYTES)
+        # a large domain's S was never built (size_estimate.BUILT_VALUE_BYTES)
         if domain.values is None or domain.release_values(RELEASE_VALUE_BYTES):
             domain.release_points()  # 24 bytes per point, computed again by a later use
 

@@ -6,7 +6,7 @@ the error norms at the end use it (and a body force that is integrated at every 
 Large operators are released by Simulation.start; the norms then take u_h from MLS values
 block by block, and so does an integration (S^T w f: PointGradients.integrate_values);
 S is built again on the build's blocks only for a body force integrated at every step.  A
-domain whose S would be large (domain_assembly.BUILT_VALUE_BYTES) never builds it: its
+domain whose S would be large (size_estimate.BUILT_VALUE_BYTES) never builds it: its
 load vectors and initial state come from MLS values block by block too.  These tests
 force both on small clouds (the thresholds set to 0).
 """
