@@ -34,8 +34,8 @@ class SharedConstant:
     factorization runs in the same mode -- MUMPS reads the SPD flag -- and gives the same
     bits.)  ``rows``: the local (owned) row indices
     that contact terms may reach, the rows of the Gamma_C pattern.  Offers what the step
-    solver and the rigid-motion check ask of A_const: mult, createVecRight/Left, norm
-    (infinity, of A_const) and getNearNullSpace.
+    solver, the rigid-motion check and the benchmarks ask of A_const: mult, createVecs /
+    createVecRight / createVecLeft, norm (infinity, of A_const) and getNearNullSpace.
     """
 
     def __init__(self, comm, matrix: PETSc.Mat, rows: np.ndarray):
@@ -87,6 +87,9 @@ class SharedConstant:
 
     def createVecLeft(self) -> PETSc.Vec:  # noqa: N802
         return self.jacobian.createVecLeft()
+
+    def createVecs(self) -> tuple[PETSc.Vec, PETSc.Vec]:  # noqa: N802
+        return self.jacobian.createVecs()
 
     def getNearNullSpace(self) -> PETSc.NullSpace:  # noqa: N802
         return self.jacobian.getNearNullSpace()
