@@ -37,7 +37,6 @@ from parefg.discretization.quadrature import Quadrature
 # Points per block: bounds the block's shape arrays and pairs (tens of MB at m = 2).
 BLOCK_POINTS = 65536
 
-
 # The kept gradients of a small domain (20 bytes per point and padded neighbour, per rank):
 # their MLS costs more than their memory only on small clouds, where the fixed costs matter.
 KEEP_GRADIENT_BYTES = 16_000_000
@@ -214,7 +213,7 @@ class BlockPasses:
         with timer("assembly"):
             mass = np.zeros((len(indices), 1, 1))
             gradient_gram = np.zeros((len(indices), 2, 2))
-            lengths = row_lengths if values else np.zeros(0, dtype=np.int64)
+            lengths = row_lengths if values else np.zeros(0, dtype=np.int64)  # S's rows
             value_indptr = np.concatenate([[0], np.cumsum(lengths)])
             value_indices = np.empty(value_indptr[-1], dtype=np.int32)
             value_data = np.empty(value_indptr[-1])

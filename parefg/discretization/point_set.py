@@ -29,8 +29,9 @@ class PointSet:
     norms and nodal stresses need them); None for point sets without gradients.
 
     A point set with ``rebuild`` (the domain's) may drop ``values`` between uses
-    (:meth:`release_values`): ``evaluate`` then works from MLS values block by block, and
-    the next ``integrate`` builds the operator again.  One with ``regenerate`` may also
+    (:meth:`release_values`), or never build it (a large domain): ``evaluate`` and
+    ``integrate`` then work from MLS values block by block, and :meth:`ensure_values`
+    builds it (again) for a caller that integrates at every step.  One with ``regenerate`` may also
     drop its points and weights (:meth:`release_points`, 24 bytes per point): every
     method here computes them again when it needs them (:meth:`restore_points`), and so
     must any other reader of ``points`` or ``weights`` after a release.

@@ -111,8 +111,9 @@ def memory_per_rank(size: Size, n_ranks: int, direct: bool = True) -> float:
     an iterative one (CG + GAMG) keeps no factor.
     """
     gradient_points = size.n_domain_points + size.n_nodes
-    # S's entries: the padded lists' mean (the most padded shape's, 1.8); unbuilt if large
-    if 12 * size.n_domain_points * size.neighbours / 1.8 / n_ranks >= BUILT_VALUE_BYTES:
+    # S's entries: the padded lists over the largest padding (the mean at least); unbuilt if large
+    entries = size.n_domain_points * size.neighbours / max(PADDING.values())
+    if 12 * entries / n_ranks >= BUILT_VALUE_BYTES:
         gradient_points = size.n_nodes
     shared = (
         GRADIENT_SLOT_BYTES * gradient_points * size.neighbours

@@ -67,11 +67,14 @@ class SolverMethod:
 # large eigenvalues) nor a coarse space (smooth) reaches.  No GAMG or BoomerAMG option
 # changed that (threshold 0 ... 0.2, square graph, 0-2 prolongator smoothings, coarse
 # limit, levels, Chebyshev with 2-8 steps or SOR, a filtered or s = 2.2 Pmat).
-_AMG = {
+_CG = {  # the true residual: the tolerance is on |b - A u|
     "ksp_type": "cg",
     "ksp_norm_type": "unpreconditioned",
     "ksp_rtol": "1e-8",
     "ksp_max_it": "10000",
+}
+_AMG = {
+    **_CG,
     "pc_type": "gamg",
     "pc_gamg_type": "agg",
     "pc_gamg_agg_nsmooths": "1",
@@ -88,10 +91,7 @@ _AMG = {
 # 11, 36, 26, 24 (a strength threshold of 0.7 for the 2D vector problem); measured with
 # scripts/bench/bench_iterative.py and a study of the options (README, iterative solver).
 _AMG_SCHWARZ = {
-    "ksp_type": "cg",
-    "ksp_norm_type": "unpreconditioned",
-    "ksp_rtol": "1e-8",
-    "ksp_max_it": "10000",
+    **_CG,
     "pc_type": "hypre",
     "pc_hypre_type": "boomeramg",
     "pc_hypre_boomeramg_strong_threshold": "0.7",

@@ -4,8 +4,8 @@ The Jacobian of a contact step is J = A_const + C, with C the contact and fricti
 of the active set.  C reaches only the rows (and columns) of the DOFs whose shape
 functions meet Gamma_C, the rows of the Gamma_C coupling pattern: everywhere else J and
 A_const are the same numbers.  So a large run need not hold both matrices.
-:class:`SharedConstant` takes A_const's matrix as the Jacobian's storage and keeps aside
-only A_const's Gamma_C rows:
+:class:`SharedConstant` turns A_const into the Jacobian (one copy when it is made; the
+caller then lets A_const's own matrix go) and keeps aside only A_const's Gamma_C rows:
 
 * A_const x = J x with the Gamma_C rows taken from the kept rows' product (once J holds
   contact terms): no difference of large numbers, the same sums as A_const's own rows;

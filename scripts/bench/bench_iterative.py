@@ -155,7 +155,7 @@ def _arguments():
     cli.add_argument("--degrees", default="1,2,3")
     cli.add_argument("--supports", default="2:3.2", help="extra settings, DEGREE:SUPPORT,...")
     cli.add_argument("--max-n", type=int, default=128, help="finest 1/h")
-    cli.add_argument("--max-n-defaults", type=int, default=32, help="finest 1/h, m = 3, wide s")
+    cli.add_argument("--max-n-defaults", type=int, default=32, help="finest 1/h, other supports")
     cli.add_argument(
         "--preconditioners", default="gamg,hypre", help="besides the method's: gamg,hypre,jacobi"
     )
