@@ -14,6 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from parefg.boundary import BoundaryKind
+from parefg.discretization import coarse_trace
 from parefg.discretization.assembly import Coupling
 from parefg.discretization.dirichlet import (
     DIRICHLET_METHODS,
@@ -66,6 +67,29 @@ class BoundaryOperators:
         rows = global_index[quadrature.cell] * n_gauss + np.arange(len(quadrature.cell)) % n_gauss
         return quadrature, rows
 
+    def _grouped_quadrature(self, part_id: int):
+        """This rank's Gauss points of a coarse-trace part, and each point's group and offset.
+
+        A group (:func:`~parefg.discretization.coarse_trace.trace_groups`, numbered on the
+        whole part, as every rank holds the segments) belongs to the owner of its lowest
+        segment, so its projection is local and does not depend on the partition.
+        """
+        cloud = self.cloud
+        on_part = np.flatnonzero(cloud.segment_part == part_id)
+        group, offset = coarse_trace.trace_groups(cloud.coords, cloud.segments, on_part)
+        first = np.full(group.max() + 1 if len(group) else 0, len(cloud.segments))
+        np.minimum.at(first, group, on_part)
+        owner = self.partition.segment_owner[first[group]]
+        mine = owner == self.comm.rank
+        quadrature = segment_quadrature(
+            cloud.coords,
+            cloud.segments,
+            self.scene.discretization.quadrature,
+            segment_ids=on_part[mine],
+        )
+        n_gauss = self.scene.discretization.quadrature
+        return quadrature, np.repeat(group[mine], n_gauss), np.repeat(offset[mine], n_gauss)
+
     def _boundaries(self):
         """Point sets of every boundary condition; D, its parts and the Gamma_C pattern."""
         scene, cloud, n = self.scene, self.cloud, self.n_nodes
@@ -76,14 +100,18 @@ class BoundaryOperators:
             if bc.kind == BoundaryKind.CONTACT:
                 contact_parts.append(part_id)
                 continue
-            quadrature, _ = self._boundary_quadrature([part_id])
             method = DIRICHLET_METHODS[bc.method] if bc.kind == BoundaryKind.DIRICHLET else None
+            groups = None
+            if method is not None and method.coarse:
+                quadrature, *groups = self._grouped_quadrature(part_id)
+            else:
+                quadrature, _ = self._boundary_quadrature([part_id])
             consistent = method is not None and method.consistent
             shape = self._shape(quadrature.points, gradients=consistent)
             with phase(self.timings, "assembly"):
                 boundary[name] = self._point_set(quadrature, shape)
             if method is not None:
-                parts[name], local = self._dirichlet_part(method, bc, quadrature, shape)
+                parts[name], local = self._dirichlet_part(method, bc, quadrature, shape, groups)
                 dirichlet_local = dirichlet_local + local
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
@@ -168,11 +196,14 @@ class BoundaryOperators:
             normal_traction = petsc_matrix(self.comm, normal_traction, self.n_dofs_local, 2 * n)
         return {"normal_traction": normal_traction, "gamma": gamma, "nitsche_matrix": matrix}
 
-    def _dirichlet_part(self, method, bc, quadrature: Quadrature, shape: ShapeValues):
+    def _dirichlet_part(self, method, bc, quadrature: Quadrature, shape: ShapeValues, groups):
         """One Dirichlet part by ``method``, and its local contributions to D.
 
         beta is alpha_D for the penalty, the part's safety times the coercivity bound of
-        each segment (:func:`~parefg.discretization.trace_inverse.nitsche_beta`) for Nitsche.
+        each segment (:func:`~parefg.discretization.trace_inverse.nitsche_beta`) for Nitsche,
+        the largest of its group's for the coarse trace (``groups`` = (group, offset) of
+        each point, else None): ||P sigma(v) n|| <= ||sigma(v) n|| on a group, so the
+        bound holds for the projected form.
         """
         scene, n = self.scene, self.n_nodes
         if method.consistent:
@@ -192,6 +223,15 @@ class BoundaryOperators:
             )  # points are grouped by segment
         else:
             beta = np.full(len(quadrature.weights), scene.penalty.alpha_dirichlet)
+        projection = None
+        if groups is not None:
+            group, offset = groups
+            largest = np.zeros(group.max() + 1 if len(group) else 0)
+            np.maximum.at(largest, group, beta)
+            beta = largest[group]
+            projection = coarse_trace.projection(
+                quadrature, self.cloud.coords, self.cloud.segments, group, offset
+            )
         with phase(self.timings, "assembly"):
             assert quadrature.normals is not None
             local, load, traction = local_operators(
@@ -203,6 +243,7 @@ class BoundaryOperators:
                 n,
                 scene.material.lam,
                 scene.material.mu,
+                projection,
             )
             part = DirichletPart(
                 method=method.name,
@@ -212,6 +253,7 @@ class BoundaryOperators:
                 traction=None
                 if traction is None
                 else petsc_matrix(self.comm, traction, self.n_dofs_local, 2 * n),
+                projection=projection,
             )
         return part, local
 

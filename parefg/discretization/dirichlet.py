@@ -10,8 +10,12 @@ stiffness, and a load L^T (w ubar(t)) that follows the data each step::
 The Nitsche form is consistent (the exact solution satisfies it for every beta), so its
 error does not depend on a user-tuned number; beta = safety x 2 x C_e x (segments of the
 cell), C_e the trace-inverse constant of the segment's cell
-(:mod:`parefg.discretization.trace_inverse`), which makes K + D coercive.  A method is
-chosen per part (``[boundary.NAME] method``) from :data:`DIRICHLET_METHODS`.
+(:mod:`parefg.discretization.trace_inverse`), which makes K + D coercive.  The default
+"nitsche" applies these terms to the projections P of the trace and the traction onto a
+coarse trace space (:mod:`parefg.discretization.coarse_trace`: V -> P V, T -> P T, beta
+constant per group), which keeps its error flat in beta; "nitsche-pointwise" is the
+textbook form at every Gauss point.  A method is chosen per part (``[boundary.NAME]
+method``) from :data:`DIRICHLET_METHODS`.
 
 Both derive from the boundary energy per point, whose u-gradient the step balances and
 whose ubar-gradient is the work of moving data::
@@ -40,7 +44,9 @@ class DirichletPart:
     """The operators of one Dirichlet part on this rank's points of it.
 
     ``load`` is L (2 n_points x n_dofs), ``traction`` sigma(u_h) n at the points (2 n_points
-    x n_dofs, None for the penalty), ``beta`` (n_points,) the penalty or stabilization.
+    x n_dofs, None for the penalty; projected for the coarse trace), ``beta`` (n_points,)
+    the penalty or stabilization, ``projection`` the coarse trace's P on point fields
+    (n_points x n_points, this rank's points) or None.
     """
 
     method: str
@@ -48,6 +54,7 @@ class DirichletPart:
     beta: np.ndarray  # (n_points,)
     load: PETSc.Mat
     traction: PETSc.Mat | None
+    projection: sp.csr_matrix | None = None
     # work vectors at the points, created on first use and reused (no PETSc object per step)
     _point_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
     _traction_vec: PETSc.Vec | None = field(default=None, init=False, repr=False)
@@ -69,8 +76,14 @@ class DirichletPart:
         return self._traction_vec.getArray().reshape(-1, 2).copy()
 
     def energy_and_force(self, trace: np.ndarray, traction: np.ndarray, ubar: np.ndarray):
-        """Per-point e(u, ubar) (n_points,) and f = -de/dubar = beta (u - ubar) - sigma n."""
+        """Per-point e(u, ubar) (n_points,) and f = -de/dubar = beta (u - ubar) - sigma n.
+
+        With the coarse trace, u - ubar is projected (the traction already is): the
+        densities then integrate to the form's boundary energy.
+        """
         diff = trace - ubar
+        if self.projection is not None:
+            diff = self.projection @ diff
         energy = 0.5 * self.beta * np.sum(diff**2, axis=1) - np.sum(traction * diff, axis=1)
         return energy, self.beta[:, None] * diff - traction
 
@@ -99,15 +112,17 @@ def traction_operator(shape: ShapeValues, normals: np.ndarray, n_nodes, lam, mu)
 
 @dataclass(frozen=True)
 class DirichletMethod:
-    """A registered Dirichlet method: its name and whether it has Nitsche's traction terms."""
+    """A registered Dirichlet method: its name, Nitsche's traction terms, the coarse trace."""
 
     name: str
     consistent: bool  # Nitsche: -int sigma(u) n . v - int sigma(v) n . (u - ubar)
+    coarse: bool = False  # the terms act on the coarse trace space's projections
 
 
 #: ``[boundary.NAME] method`` of a Dirichlet part -> the method; the first is the default
 DIRICHLET_METHODS = {
-    "nitsche": DirichletMethod("nitsche", consistent=True),
+    "nitsche": DirichletMethod("nitsche", consistent=True, coarse=True),
+    "nitsche-pointwise": DirichletMethod("nitsche-pointwise", consistent=True),
     "penalty": DirichletMethod("penalty", consistent=False),
 }
 DEFAULT_DIRICHLET_METHOD = next(iter(DIRICHLET_METHODS))
@@ -130,16 +145,22 @@ def local_operators(
     n_nodes: int,
     lam: float,
     mu: float,
+    projection: sp.csr_matrix | None = None,
 ) -> tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix | None]:
     """This rank's contributions to D (2n x 2n), and its rows of L and of sigma(u_h) n.
 
     D = V^T W_beta V - V^T W T - T^T W V with V the values and T the tractions at the
-    points (T = 0 for the penalty), W the quadrature weights.
+    points (T = 0 for the penalty), W the quadrature weights; with a coarse-trace
+    ``projection`` P (n_points x n_points, beta constant on its groups), V and T are
+    replaced by P V and P T.
     """
     from parefg.discretization.assembly import value_operator  # numba: not at import
 
     # kron(S, I_2) of the scalar values: row 2q + c, column 2I + c = phi_I(x_q)
     values = sp.kron(value_operator(shape, n_nodes), sp.identity(2), format="csr")
+    if projection is not None:  # rows 2q + c: P acts on each component
+        projection = sp.kron(projection, sp.identity(2), format="csr")
+        values = (projection @ values).tocsr()
     weight_rows = np.repeat(weights, 2)
     beta_rows = np.repeat(beta, 2)
     matrix = values.T @ sp.diags(weight_rows * beta_rows) @ values
@@ -147,6 +168,8 @@ def local_operators(
     traction = None
     if method.consistent:
         traction = traction_operator(shape, normals, n_nodes, lam, mu)
+        if projection is not None:
+            traction = (projection @ traction).tocsr()
         cross = values.T @ sp.diags(weight_rows) @ traction
         matrix = matrix - cross - cross.T
         load = load - traction

@@ -24,7 +24,12 @@ CASES = {
     ),
     # Newmark on the Z, contact on its bottom edge.
     "z-dynamic": ("z", ["time.dt=0.1"]),
-    # The paper's penalty on the clamped top instead of the default Nitsche.
+    # The paper's penalty on the clamped top instead of the default Nitsche (coarse trace),
+    # and the pointwise Nitsche
+    "square-nitsche-pointwise": (
+        "square",
+        ["time.dt=0.1", "boundary.top.method=nitsche-pointwise"],
+    ),
     "square-penalty": ("square", ["time.dt=0.1", "boundary.top.method=penalty"]),
     # The paper's penalty contact instead of the default Nitsche contact.
     "square-penalty-contact": ("square", ["time.dt=0.1", "boundary.bottom.method=penalty"]),
