@@ -17,7 +17,9 @@ from parefg.boundary import BoundaryKind
 from parefg.discretization import coarse_trace
 from parefg.discretization.assembly import Coupling
 from parefg.discretization.dirichlet import (
+    COARSE_CONTACT_METHODS,
     DIRICHLET_METHODS,
+    NITSCHE_CONTACT_METHODS,
     DirichletPart,
     local_operators,
     traction_operator,
@@ -53,42 +55,40 @@ class BoundaryOperators:
     ) -> PointSet:
         raise NotImplementedError  # the builder's: the PointSet of a quadrature
 
-    def _boundary_quadrature(self, part_ids: list[int]) -> tuple[Quadrature, np.ndarray]:
-        """This rank's Gauss points on segments of the given parts, and their global rows."""
+    def _boundary_quadrature(self, part_ids: list[int], grouped=()):
+        """This rank's Gauss points on segments of the given parts, and their global rows.
+
+        Segments of the parts in ``grouped`` are taken by coarse-trace groups
+        (:func:`~parefg.discretization.coarse_trace.trace_groups`, numbered on the whole
+        part, as every rank holds the segments): a group belongs to the owner of its
+        lowest segment, so its projection is local and does not depend on the partition,
+        and its segments come together in chain order (Coupling groups consecutive
+        points).  Returns (quadrature, rows, group, offset), the last two per point
+        (group -1 on the other parts).
+        """
         cloud, part = self.cloud, self.partition
         on_parts = np.isin(cloud.segment_part, part_ids)
         # global, rank-independent numbering of the selected segments (for output rows)
         global_index = np.cumsum(on_parts) - 1
-        mine = np.flatnonzero(on_parts & (part.segment_owner == self.comm.rank))
-        quadrature = segment_quadrature(
-            cloud.coords, cloud.segments, self.scene.discretization.quadrature, segment_ids=mine
-        )
+        group = np.full(len(cloud.segments), -1, dtype=np.int64)
+        offset = np.zeros(len(cloud.segments))
+        for part_id in grouped:
+            on_part = np.flatnonzero(cloud.segment_part == part_id)
+            part_group, offset[on_part] = coarse_trace.trace_groups(
+                cloud.coords, cloud.segments, on_part
+            )
+            group[on_part] = part_group + group.max() + 1
+        owner = part.segment_owner.copy()
+        in_group = np.flatnonzero(group >= 0)
+        first = np.full(group.max() + 1, len(cloud.segments))
+        np.minimum.at(first, group[in_group], in_group)
+        owner[in_group] = owner[first[group[in_group]]]
+        mine = np.flatnonzero(on_parts & (owner == self.comm.rank))
+        mine = mine[np.lexsort((offset[mine], group[mine]))]  # stable: the rest in id order
         n_gauss = self.scene.discretization.quadrature
+        quadrature = segment_quadrature(cloud.coords, cloud.segments, n_gauss, segment_ids=mine)
         rows = global_index[quadrature.cell] * n_gauss + np.arange(len(quadrature.cell)) % n_gauss
-        return quadrature, rows
-
-    def _grouped_quadrature(self, part_id: int):
-        """This rank's Gauss points of a coarse-trace part, and each point's group and offset.
-
-        A group (:func:`~parefg.discretization.coarse_trace.trace_groups`, numbered on the
-        whole part, as every rank holds the segments) belongs to the owner of its lowest
-        segment, so its projection is local and does not depend on the partition.
-        """
-        cloud = self.cloud
-        on_part = np.flatnonzero(cloud.segment_part == part_id)
-        group, offset = coarse_trace.trace_groups(cloud.coords, cloud.segments, on_part)
-        first = np.full(group.max() + 1 if len(group) else 0, len(cloud.segments))
-        np.minimum.at(first, group, on_part)
-        owner = self.partition.segment_owner[first[group]]
-        mine = owner == self.comm.rank
-        quadrature = segment_quadrature(
-            cloud.coords,
-            cloud.segments,
-            self.scene.discretization.quadrature,
-            segment_ids=on_part[mine],
-        )
-        n_gauss = self.scene.discretization.quadrature
-        return quadrature, np.repeat(group[mine], n_gauss), np.repeat(offset[mine], n_gauss)
+        return quadrature, rows, group[quadrature.cell], offset[quadrature.cell]
 
     def _boundaries(self):
         """Point sets of every boundary condition; D, its parts and the Gamma_C pattern."""
@@ -101,48 +101,65 @@ class BoundaryOperators:
                 contact_parts.append(part_id)
                 continue
             method = DIRICHLET_METHODS[bc.method] if bc.kind == BoundaryKind.DIRICHLET else None
-            groups = None
-            if method is not None and method.coarse:
-                quadrature, *groups = self._grouped_quadrature(part_id)
-            else:
-                quadrature, _ = self._boundary_quadrature([part_id])
+            coarse = method is not None and method.coarse
+            quadrature, _, *groups = self._boundary_quadrature(
+                [part_id], grouped=[part_id] if coarse else []
+            )
             consistent = method is not None and method.consistent
             shape = self._shape(quadrature.points, gradients=consistent)
             with phase(self.timings, "assembly"):
                 boundary[name] = self._point_set(quadrature, shape)
             if method is not None:
-                parts[name], local = self._dirichlet_part(method, bc, quadrature, shape, groups)
+                parts[name], local = self._dirichlet_part(
+                    method, bc, quadrature, shape, groups if coarse else None
+                )
                 dirichlet_local = dirichlet_local + local
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
-            quadrature, rows = self._boundary_quadrature(contact_parts)
+            nitsche_parts = self._nitsche_contact_parts()
+            coarse_parts = self._nitsche_contact_parts(coarse_only=True)
+            quadrature, rows, group, offset = self._boundary_quadrature(
+                contact_parts, grouped=coarse_parts
+            )
             on_contact = np.isin(cloud.segment_part, contact_parts)  # every rank's segments
             self.n_contact = (
                 int(np.count_nonzero(on_contact)) * self.scene.discretization.quadrature
             )
-            nitsche_parts = self._nitsche_contact_parts()
             shape = self._shape(quadrature.points, gradients=bool(nitsche_parts))
             part_of_point = cloud.segment_part[quadrature.cell]
             extra = {}
             if nitsche_parts:
-                extra = self._nitsche_contact(quadrature, shape, part_of_point, nitsche_parts)
+                projection = None
+                if coarse_parts:
+                    projection = coarse_trace.projection(
+                        quadrature, cloud.coords, cloud.segments, group, offset
+                    )
+                extra = self._nitsche_contact(
+                    quadrature, shape, part_of_point, nitsche_parts, group, projection
+                )
                 dirichlet_local = dirichlet_local - extra.pop("nitsche_matrix")
             with phase(self.timings, "assembly"):
                 contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows, **extra)
-                coupling = Coupling.of(shape, n, quadrature.cell)
+                # a coarse-trace group couples all its nodes: its points are one group
+                # (each penalty segment's own); both are consecutive (_boundary_quadrature)
+                cells = np.where(group >= 0, -2 - group, quadrature.cell)
+                coupling = Coupling.of(shape, n, cells)
                 pattern = coupling.interleaved(np.zeros((len(coupling.indices), 2, 2)))
         return boundary, parts, contact, dirichlet_local, pattern
 
-    def _nitsche_contact_parts(self) -> list[int]:
-        """Part ids of the contact parts imposed by Nitsche's method."""
+    def _nitsche_contact_parts(self, coarse_only: bool = False) -> list[int]:
+        """Part ids of the contact parts imposed by a Nitsche method (on the coarse trace)."""
         cloud, scene = self.cloud, self.scene
+        methods = COARSE_CONTACT_METHODS if coarse_only else NITSCHE_CONTACT_METHODS
         return [
             cloud.part_names.index(name)
             for name, bc in scene.boundaries.items()
-            if bc.kind == BoundaryKind.CONTACT and bc.method == "nitsche"
+            if bc.kind == BoundaryKind.CONTACT and bc.method in methods
         ]
 
-    def _nitsche_contact(self, quadrature, shape, part_of_point, nitsche_parts) -> dict:
+    def _nitsche_contact(
+        self, quadrature, shape, part_of_point, nitsche_parts, group, projection
+    ) -> dict:
         """sigma_nu(u_h) at the Gamma_C points, gamma, and N = T_nu^T W gamma^-1 T_nu.
 
         Chouly & Hild's symmetric Nitsche contact (parefg.mechanics.contact) is the
@@ -151,11 +168,17 @@ class BoundaryOperators:
         (the Dirichlet parts' bound, shared with them where a cell has both): then
         a(v, v) - ||sigma_nu(v)||^2 / gamma >= (1 - 1 / (2 safety)) a(v, v).  Points of
         penalty contact parts get zero traction rows and gamma = alpha_C.
+
+        As on the Dirichlet parts, the law acts on the coarse trace (``projection`` P,
+        each point's ``group``): T_nu -> P T_nu here, u -> P u in the contact frame, gamma
+        the largest of its group's, so that P and gamma commute.  Its error is then flat
+        in the safety; a pointwise law over-constrains the MLS trace as gamma grows.
         """
         scene, n = self.scene, self.n_nodes
         lam, mu = scene.material.lam, scene.material.mu
+        n_gauss = scene.discretization.quadrature
         with phase(self.timings, "assembly"):  # the trace-inverse estimate
-            segments = np.unique(quadrature.cell)
+            segments = quadrature.cell[::n_gauss]  # points come by segment, n_gauss each
             per_segment = nitsche_beta(
                 self.mls,
                 self.cloud,
@@ -168,19 +191,21 @@ class BoundaryOperators:
             )
         safety = np.zeros(len(self.cloud.part_names))
         for name, bc in scene.boundaries.items():
-            if bc.kind == BoundaryKind.CONTACT and bc.method == "nitsche":
+            if bc.kind == BoundaryKind.CONTACT and bc.method != "penalty":
                 safety[self.cloud.part_names.index(name)] = bc.safety
-        # points are grouped by segment, in the order of np.unique(cell)
-        segment_of_point = np.searchsorted(segments, quadrature.cell)
+        segment_of_point = np.repeat(np.arange(len(segments)), n_gauss)
         nitsche = np.isin(part_of_point, nitsche_parts)
-        gamma = np.where(
-            nitsche,
-            safety[part_of_point] * per_segment[segment_of_point],
-            scene.penalty.alpha_contact,
-        )
+        gamma = safety[part_of_point] * per_segment[segment_of_point]
+        grouped = group >= 0  # the coarse trace's points: their group's largest
+        largest = np.zeros(group.max() + 1 if len(group) else 0)
+        np.maximum.at(largest, group[grouped], gamma[grouped])
+        gamma[grouped] = largest[group[grouped]]
+        gamma = np.where(nitsche, gamma, scene.penalty.alpha_contact)
         with phase(self.timings, "assembly"):
             assert quadrature.normals is not None
             traction = traction_operator(shape, quadrature.normals, n, lam, mu)
+            if projection is not None:
+                traction = (sp.kron(projection, sp.identity(2)) @ traction).tocsr()
             normals = quadrature.normals * nitsche[:, None]  # zero rows off Nitsche parts
             rotate = sp.csr_matrix(
                 (
@@ -194,7 +219,12 @@ class BoundaryOperators:
             matrix = (normal_traction.T @ scale @ normal_traction).tocsr()
             # PETSc, as the point set's value operator: no scipy twin is kept
             normal_traction = petsc_matrix(self.comm, normal_traction, self.n_dofs_local, 2 * n)
-        return {"normal_traction": normal_traction, "gamma": gamma, "nitsche_matrix": matrix}
+        return {
+            "normal_traction": normal_traction,
+            "gamma": gamma,
+            "nitsche_matrix": matrix,
+            "projection": projection,
+        }
 
     def _dirichlet_part(self, method, bc, quadrature: Quadrature, shape: ShapeValues, groups):
         """One Dirichlet part by ``method``, and its local contributions to D.
@@ -212,15 +242,13 @@ class BoundaryOperators:
                     self.mls,
                     self.cloud,
                     self._nitsche_segments(),
-                    np.unique(quadrature.cell),
+                    quadrature.cell[:: scene.discretization.quadrature],  # by segment
                     scene.discretization.quadrature,
                     scene.material.lam,
                     scene.material.mu,
                     edge_values=(quadrature.points, shape),
                 )
-            beta = np.repeat(
-                per_segment, scene.discretization.quadrature
-            )  # points are grouped by segment
+            beta = np.repeat(per_segment, scene.discretization.quadrature)
         else:
             beta = np.full(len(quadrature.weights), scene.penalty.alpha_dirichlet)
         projection = None
@@ -263,6 +291,6 @@ class BoundaryOperators:
         for name, bc in self.scene.boundaries.items():
             if bc.kind == BoundaryKind.DIRICHLET and DIRICHLET_METHODS[bc.method].consistent:
                 names.append(cloud.part_names.index(name))
-            if bc.kind == BoundaryKind.CONTACT and bc.method == "nitsche":
+            if bc.kind == BoundaryKind.CONTACT and bc.method != "penalty":
                 names.append(cloud.part_names.index(name))
         return np.flatnonzero(np.isin(cloud.segment_part, names))

@@ -99,13 +99,15 @@ def projection(
     """The weighted L2 projection onto the coarse space, (n_points x n_points).
 
     ``group``, ``offset``: of each point's segment (:func:`trace_groups`); the points of a
-    group must all be in ``quadrature``.  Applies to each component of a point field.
-    The projection is W-self-adjoint: W P = P^T W with W the quadrature weights.
+    group must all be in ``quadrature``; points of group -1 (a penalty part's) keep their
+    values (identity rows).  Applies to each component of a point field.  The projection
+    is W-self-adjoint: W P = P^T W with W the quadrature weights.
     """
     start = coords[segments[quadrature.cell, 0]]
     arc = offset + np.hypot(*(quadrature.points - start).T)  # along the group
-    rows, columns, values = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0)]
-    for g in np.unique(group):  # a rank without points of the part: an empty P
+    alone = np.flatnonzero(group < 0)
+    rows, columns, values = [alone], [alone], [np.ones(len(alone))]
+    for g in np.unique(group[group >= 0]):  # a rank without points of the part: empty P
         points = np.flatnonzero(group == g)
         n_segments = len(np.unique(quadrature.cell[points]))
         low, high = arc[points].min(), arc[points].max()

@@ -262,7 +262,7 @@ class _Builder(BoundaryOperators):
     def _boundary_consistency_sums(self, sums: ConsistencySums) -> None:
         """The VCI terms of this rank's segments of every part (the whole boundary)."""
         every_part = list(range(len(self.cloud.part_names)))
-        boundary, _ = self._boundary_quadrature(every_part)
+        boundary, *_ = self._boundary_quadrature(every_part)
         shape = self._shape(boundary.points, gradients=False)
         with phase(self.timings, "assembly"):
             assert boundary.normals is not None

@@ -9,12 +9,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.discretization.point_gradients import PointGradients
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 
 @dataclass
@@ -48,6 +52,10 @@ class PointSet:
     # 2 n_nodes, zero rows on penalty parts) and gamma (n_points,)
     normal_traction: PETSc.Mat | None = field(default=None, repr=False)
     gamma: np.ndarray | None = None
+    # Gamma_C with Nitsche contact: the coarse trace's projection P on point fields (scipy,
+    # n_points x n_points, identity rows on penalty parts; parefg.discretization.coarse_trace):
+    # the contact law acts on P u (normal_traction is already projected)
+    projection: sp.csr_matrix | None = field(default=None, repr=False)
     # builds ``values`` again from the points (collective): MLS there once more, by block
     rebuild: Callable[[np.ndarray], PETSc.Mat] | None = field(default=None, repr=False)
     # computes (points, weights) again, the same numbers in the same order (not collective)

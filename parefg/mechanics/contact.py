@@ -82,6 +82,8 @@ class ContactLaw(ContactFrame):
         self._bcs = _contact_parts(disc.cloud.part_names, scene.boundaries)
         self.has_friction = not all(bc.friction_is_zero for bc in self._bcs.values())
         self.gap = self._per_part("gap", lambda bc, x, y, n: bc.gap(x, y), 0.0)
+        if disc.contact.projection is not None:  # the law compares P u_nu with P s
+            self.gap = disc.contact.projection @ self.gap
         self._friction_data = self._friction_bounds() if self.has_friction else []
         self._init_coulomb()
         self.bound_data = np.zeros(len(self.weights))  # g_n(x_q) at the points, set by set_time

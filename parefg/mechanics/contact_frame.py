@@ -30,7 +30,9 @@ class ContactFrame:
     points
         The discretization's Gamma_C points (``disc.contact``): ``weights`` (n_c,),
         ``points`` and ``normals`` (n_c, 2), ``part`` (n_c,) and the value operator
-        ``values`` (scalar n_c x n_nodes PETSc).
+        ``values`` (scalar n_c x n_nodes PETSc), projected by ``projection`` where the
+        coarse trace applies (the normals are constant on its groups: P commutes with
+        the rotation).
     """
 
     def __init__(self, comm, points) -> None:
@@ -42,6 +44,8 @@ class ContactFrame:
         self.part = points.part
         # kron(S, I_2) of the scalar value operator: rows 2q, 2q + 1 = (u_x, u_y)(x_q)
         values = sp.kron(_scipy_from_petsc(points.values), sp.identity(2), format="csr")
+        if points.projection is not None:  # Nitsche contact on the coarse trace: P u
+            values = (sp.kron(points.projection, sp.identity(2)) @ values).tocsr()
         local = (_rotated(self.normals, self.tangents) @ values).tocsr()
         n_local, n_dofs = 2 * points.values.getLocalSize()[1], 2 * points.values.getSize()[1]
         # Nitsche contact: the law's "u_nu" is u_nu - sigma_nu(u_h) / gamma (ContactLaw)

@@ -92,12 +92,12 @@ def _read_contact_method(table: Table) -> None:
     Dirichlet part; the penalty's alpha_C is [penalty] alpha_contact.
     """
     method = table.take("method", one_of(*CONTACT_METHODS), DEFAULT_CONTACT_METHOD)
-    if method != "nitsche":
+    if method == "penalty":
         if "safety" in table.raw:
             raise table.fail(
                 "safety",
                 table.raw["safety"],
-                'only used with method = "nitsche" (the penalty\'s parameter is '
+                "only used with the Nitsche methods (the penalty's parameter is "
                 "penalty.alpha_contact)",
             )
         return

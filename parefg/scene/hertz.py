@@ -48,6 +48,8 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from parefg.discretization.dirichlet import NITSCHE_CONTACT_METHODS
+
 #: the mesh source (R = 1); nodes graded to h * CONTACT_REFINEMENT near the origin
 HALF_DISK_GEO = Path(__file__).resolve().parents[2] / "meshes" / "half_disk.geo"
 RADIUS = 1.0
@@ -73,10 +75,10 @@ def hertz_scene(
 
     ``contact``: a number c is penalty contact with alpha_C = c E / h_c; ``"penalty"`` the
     penalty at parefg's default alpha (1e4 E / h); ``"nitsche"`` Nitsche contact (its
-    gamma from the trace-inverse estimate).
+    gamma from the trace-inverse estimate), or another of NITSCHE_CONTACT_METHODS.
     """
-    if contact == "nitsche":
-        method, penalty = "nitsche", ""
+    if contact in NITSCHE_CONTACT_METHODS:
+        method, penalty = contact, ""
     elif contact == "penalty":
         method, penalty = "penalty", ""
     else:

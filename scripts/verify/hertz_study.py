@@ -39,6 +39,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 from parefg.discretization.budget import check_problem_size
+from parefg.discretization.dirichlet import CONTACT_METHODS
 from parefg.discretization.operators import build_discretization
 from parefg.run import build_simulation
 from parefg.scene.hertz import ARC_GAP, CHORD_GAP, hertz_scene, measure
@@ -151,7 +152,7 @@ def main() -> None:
         [float(v) for v in args.nu.split(",")],
         [float(v) for v in args.degree.split(",")],
         [float(v) for v in args.delta.split(",")],
-        [v if v in ("penalty", "nitsche") else float(v) for v in args.alpha.split(",")],
+        [v if v in CONTACT_METHODS else float(v) for v in args.alpha.split(",")],
         [float(v) for v in args.h.split(",")],
     )
     rows = [

@@ -31,6 +31,16 @@ CASES = {
         ["time.dt=0.1", "boundary.top.method=nitsche-pointwise"],
     ),
     "square-penalty": ("square", ["time.dt=0.1", "boundary.top.method=penalty"]),
+    # Nitsche contact on the coarse trace: at h = 1/12 the bottom's second group of 4
+    # segments straddles the ranks' cut at x = 0.5 (rank 0, its lowest segment's, takes it)
+    "square-nitsche-coarse-contact": (
+        "square",
+        [
+            "time.dt=0.1",
+            "boundary.bottom.method=nitsche-coarse",
+            "discretization.h=0.08333333333333333",
+        ],
+    ),
     # The paper's penalty contact instead of the default Nitsche contact.
     "square-penalty-contact": ("square", ["time.dt=0.1", "boundary.bottom.method=penalty"]),
     # m = 3: VCI (its default) and its nonsymmetric stiffness (LU); with Cholesky the ranks
