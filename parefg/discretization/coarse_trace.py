@@ -1,4 +1,4 @@
-"""The coarse trace space of Nitsche's Dirichlet method: one polynomial coefficient per segment.
+"""The coarse trace space of Nitsche's boundary methods: one polynomial coefficient per segment.
 
 Symmetric Nitsche with a large stabilization tends to the penalty's limit u_h = ubar at
 every boundary Gauss point.  An MLS space has one node per segment along the boundary but
@@ -21,7 +21,9 @@ Nitsche at safety 2, within 1.01x from safety 1.1 to 2e4.
 beta is constant on a group (its segments' largest bound), which makes P and beta commute:
 the load L = beta P V - P T reproduces the form's data terms.  Groups never cross a corner
 of the boundary (where the traction jumps), a part or a rank: a group is owned by the rank
-of its first segment.  Nothing here is collective.
+of its lowest segment.  Dirichlet parts use it by default ("nitsche"); contact parts on
+request ("nitsche-coarse": the law on P u, which resolves a contact zone's edge less well,
+README).  Nothing here is collective.
 """
 
 from __future__ import annotations
