@@ -102,7 +102,7 @@ class BoundaryOperators:
                 continue
             method = DIRICHLET_METHODS[bc.method] if bc.kind == BoundaryKind.DIRICHLET else None
             coarse = method is not None and method.coarse
-            quadrature, _, *groups = self._boundary_quadrature(
+            quadrature, _, group, offset = self._boundary_quadrature(
                 [part_id], grouped=[part_id] if coarse else []
             )
             consistent = method is not None and method.consistent
@@ -111,7 +111,7 @@ class BoundaryOperators:
                 boundary[name] = self._point_set(quadrature, shape)
             if method is not None:
                 parts[name], local = self._dirichlet_part(
-                    method, bc, quadrature, shape, groups if coarse else None
+                    method, bc, quadrature, shape, (group, offset) if coarse else None
                 )
                 dirichlet_local = dirichlet_local + local
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
@@ -191,21 +191,18 @@ class BoundaryOperators:
             )
         safety = np.zeros(len(self.cloud.part_names))
         for name, bc in scene.boundaries.items():
-            if bc.kind == BoundaryKind.CONTACT and bc.method != "penalty":
+            if bc.kind == BoundaryKind.CONTACT and bc.method in NITSCHE_CONTACT_METHODS:
                 safety[self.cloud.part_names.index(name)] = bc.safety
         segment_of_point = np.repeat(np.arange(len(segments)), n_gauss)
         nitsche = np.isin(part_of_point, nitsche_parts)
         gamma = safety[part_of_point] * per_segment[segment_of_point]
-        grouped = group >= 0  # the coarse trace's points: their group's largest
-        largest = np.zeros(group.max() + 1 if len(group) else 0)
-        np.maximum.at(largest, group[grouped], gamma[grouped])
-        gamma[grouped] = largest[group[grouped]]
+        gamma = coarse_trace.group_largest(gamma, group)
         gamma = np.where(nitsche, gamma, scene.penalty.alpha_contact)
         with phase(self.timings, "assembly"):
             assert quadrature.normals is not None
             traction = traction_operator(shape, quadrature.normals, n, lam, mu)
             if projection is not None:
-                traction = (sp.kron(projection, sp.identity(2)) @ traction).tocsr()
+                traction = coarse_trace.project_rows(projection, traction)
             normals = quadrature.normals * nitsche[:, None]  # zero rows off Nitsche parts
             rotate = sp.csr_matrix(
                 (
@@ -254,9 +251,7 @@ class BoundaryOperators:
         projection = None
         if groups is not None:
             group, offset = groups
-            largest = np.zeros(group.max() + 1 if len(group) else 0)
-            np.maximum.at(largest, group, beta)
-            beta = largest[group]
+            beta = coarse_trace.group_largest(beta, group)
             projection = coarse_trace.projection(
                 quadrature, self.cloud.coords, self.cloud.segments, group, offset
             )
@@ -291,6 +286,6 @@ class BoundaryOperators:
         for name, bc in self.scene.boundaries.items():
             if bc.kind == BoundaryKind.DIRICHLET and DIRICHLET_METHODS[bc.method].consistent:
                 names.append(cloud.part_names.index(name))
-            if bc.kind == BoundaryKind.CONTACT and bc.method != "penalty":
+            if bc.kind == BoundaryKind.CONTACT and bc.method in NITSCHE_CONTACT_METHODS:
                 names.append(cloud.part_names.index(name))
         return np.flatnonzero(np.isin(cloud.segment_part, names))

@@ -28,10 +28,13 @@ README).  Nothing here is collective.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import scipy.sparse as sp
 
-from parefg.discretization.quadrature import Quadrature
+if TYPE_CHECKING:  # the scene schema reads dirichlet.py, which imports project_rows
+    from parefg.discretization.quadrature import Quadrature
 
 #: segments per group of the coarse trace (degree CHUNK_SEGMENTS - 1 on a full group)
 CHUNK_SEGMENTS = 4
@@ -109,8 +112,12 @@ def projection(
     arc = offset + np.hypot(*(quadrature.points - start).T)  # along the group
     alone = np.flatnonzero(group < 0)
     rows, columns, values = [alone], [alone], [np.ones(len(alone))]
-    for g in np.unique(group[group >= 0]):  # a rank without points of the part: empty P
-        points = np.flatnonzero(group == g)
+    # the points of each group, in one sort (a rank without points of the part: empty P)
+    by_group = np.argsort(group, kind="stable")
+    starts = np.flatnonzero(np.diff(group[by_group])) + 1
+    for points in np.split(by_group, starts):
+        if len(points) == 0 or group[points[0]] < 0:
+            continue
         n_segments = len(np.unique(quadrature.cell[points]))
         low, high = arc[points].min(), arc[points].max()
         # Legendre in [-1, 1] over the group's points, orthonormalized in the weights
@@ -127,3 +134,21 @@ def projection(
     return sp.csr_matrix(
         (np.concatenate(values), (np.concatenate(rows), np.concatenate(columns))), shape=(n, n)
     )
+
+
+def project_rows(projection: sp.csr_matrix, interleaved: sp.csr_matrix) -> sp.csr_matrix:
+    """P applied to each component of an operator with rows 2q + c (values, tractions)."""
+    return (sp.kron(projection, sp.identity(2), format="csr") @ interleaved).tocsr()
+
+
+def group_largest(values: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """``values`` per point with each group's points given its largest (group -1 kept).
+
+    beta or gamma constant on a group makes P commute with it.
+    """
+    grouped = group >= 0
+    largest = np.zeros(group.max() + 1 if len(group) else 0)
+    np.maximum.at(largest, group[grouped], values[grouped])
+    out = np.array(values, dtype=float)
+    out[grouped] = largest[group[grouped]]
+    return out

@@ -33,6 +33,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
+from parefg.discretization.coarse_trace import project_rows
+
 if TYPE_CHECKING:  # the scene schema reads the registry without loading PETSc or numba
     from petsc4py import PETSc
 
@@ -166,9 +168,8 @@ def local_operators(
 
     # kron(S, I_2) of the scalar values: row 2q + c, column 2I + c = phi_I(x_q)
     values = sp.kron(value_operator(shape, n_nodes), sp.identity(2), format="csr")
-    if projection is not None:  # rows 2q + c: P acts on each component
-        projection = sp.kron(projection, sp.identity(2), format="csr")
-        values = (projection @ values).tocsr()
+    if projection is not None:
+        values = project_rows(projection, values)
     weight_rows = np.repeat(weights, 2)
     beta_rows = np.repeat(beta, 2)
     matrix = values.T @ sp.diags(weight_rows * beta_rows) @ values
@@ -177,7 +178,7 @@ def local_operators(
     if method.consistent:
         traction = traction_operator(shape, normals, n_nodes, lam, mu)
         if projection is not None:
-            traction = (projection @ traction).tocsr()
+            traction = project_rows(projection, traction)
         cross = values.T @ sp.diags(weight_rows) @ traction
         matrix = matrix - cross - cross.T
         load = load - traction

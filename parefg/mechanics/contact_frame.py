@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from parefg.discretization.coarse_trace import project_rows
 from parefg.parallel import petsc_matrix
 
 # kept kinematics results: the accepted u survives the next step's predictor (begin_step
@@ -31,8 +32,8 @@ class ContactFrame:
         The discretization's Gamma_C points (``disc.contact``): ``weights`` (n_c,),
         ``points`` and ``normals`` (n_c, 2), ``part`` (n_c,) and the value operator
         ``values`` (scalar n_c x n_nodes PETSc), projected by ``projection`` where the
-        coarse trace applies (the normals are constant on its groups: P commutes with
-        the rotation).
+        coarse trace applies (P on (u_x, u_y), then each point's own rotation, as the
+        traction rows: on a bend of a group, under 30 degrees, the two do not commute).
     """
 
     def __init__(self, comm, points) -> None:
@@ -45,7 +46,7 @@ class ContactFrame:
         # kron(S, I_2) of the scalar value operator: rows 2q, 2q + 1 = (u_x, u_y)(x_q)
         values = sp.kron(_scipy_from_petsc(points.values), sp.identity(2), format="csr")
         if points.projection is not None:  # Nitsche contact on the coarse trace: P u
-            values = (sp.kron(points.projection, sp.identity(2)) @ values).tocsr()
+            values = project_rows(points.projection, values)
         local = (_rotated(self.normals, self.tangents) @ values).tocsr()
         n_local, n_dofs = 2 * points.values.getLocalSize()[1], 2 * points.values.getSize()[1]
         # Nitsche contact: the law's "u_nu" is u_nu - sigma_nu(u_h) / gamma (ContactLaw)

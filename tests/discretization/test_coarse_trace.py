@@ -9,7 +9,12 @@ weights, and removes what is orthogonal to them.  Not collective (plain arrays).
 import numpy as np
 import pytest
 
-from parefg.discretization.coarse_trace import CHUNK_SEGMENTS, projection, trace_groups
+from parefg.discretization.coarse_trace import (
+    CHUNK_SEGMENTS,
+    group_largest,
+    projection,
+    trace_groups,
+)
 from parefg.discretization.quadrature import segment_quadrature
 
 
@@ -97,3 +102,11 @@ def test_projection_keeps_the_coarse_polynomials_and_is_a_weighted_projection(or
     oscillation = np.tile([1.0, -1.0], len(arc))[: len(arc)] if order % 2 == 0 else None
     if oscillation is not None:
         assert np.linalg.norm(p @ oscillation) < 0.5 * np.linalg.norm(oscillation)
+
+
+def test_group_largest_gives_each_group_its_largest_and_keeps_ungrouped_points():
+    values = np.array([1.0, 5.0, 2.0, 7.0, 3.0, 4.0])
+    group = np.array([0, 0, -1, 1, 1, -1])
+    np.testing.assert_array_equal(group_largest(values, group), [5.0, 5.0, 2.0, 7.0, 7.0, 4.0])
+    ungrouped = np.full(3, -1)  # a contact with penalty parts only: nothing changes
+    np.testing.assert_array_equal(group_largest(values[:3], ungrouped), values[:3])
