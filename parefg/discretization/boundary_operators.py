@@ -15,7 +15,7 @@ import scipy.sparse as sp
 
 from parefg.boundary import BoundaryKind
 from parefg.discretization import coarse_trace
-from parefg.discretization.assembly import Coupling
+from parefg.discretization.assembly import interleaved
 from parefg.discretization.dirichlet import (
     COARSE_CONTACT_METHODS,
     DIRICHLET_METHODS,
@@ -62,9 +62,8 @@ class BoundaryOperators:
         (:func:`~parefg.discretization.coarse_trace.trace_groups`, numbered on the whole
         part, as every rank holds the segments): a group belongs to the owner of its
         lowest segment, so its projection is local and does not depend on the partition,
-        and its segments come together in chain order (Coupling groups consecutive
-        points).  Returns (quadrature, rows, group, offset), the last two per point
-        (group -1 on the other parts).
+        and its segments come together in chain order.  Returns (quadrature, rows,
+        group, offset), the last two per point (group -1 on the other parts).
         """
         cloud, part = self.cloud, self.partition
         on_parts = np.isin(cloud.segment_part, part_ids)
@@ -140,11 +139,7 @@ class BoundaryOperators:
                 dirichlet_local = dirichlet_local - extra.pop("nitsche_matrix")
             with phase(self.timings, "assembly"):
                 contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows, **extra)
-                # a coarse-trace group couples all its nodes: its points are one group
-                # (each penalty segment's own); both are consecutive (_boundary_quadrature)
-                cells = np.where(group >= 0, -2 - group, quadrature.cell)
-                coupling = Coupling.of(shape, n, cells)
-                pattern = coupling.interleaved(np.zeros((len(coupling.indices), 2, 2)))
+                pattern = contact_pattern(shape, n, group)
         return boundary, parts, contact, dirichlet_local, pattern
 
     def _nitsche_contact_parts(self, coarse_only: bool = False) -> list[int]:
@@ -289,3 +284,24 @@ class BoundaryOperators:
             if bc.kind == BoundaryKind.CONTACT and bc.method in NITSCHE_CONTACT_METHODS:
                 names.append(cloud.part_names.index(name))
         return np.flatnonzero(np.isin(cloud.segment_part, names))
+
+
+def contact_pattern(shape: ShapeValues, n_nodes: int, group: np.ndarray) -> sp.csr_matrix:
+    """The (2 n_nodes)^2 pattern (explicit zeros) of every contact Jacobian of the points.
+
+    A point of a coarse-trace group (``group`` >= 0) reaches, through P, every node of
+    its group's points: the group couples all pairs of those nodes, in both components.
+    Any other point couples the nodes it shares.  The Nitsche matrix of the coarse law
+    has these entries too, but not all of them (with lambda = 0, sigma_nu has no u_x
+    part while the tangential rows do), so the pattern cannot rely on it.  Not collective.
+    """
+    row_of_point = np.where(group >= 0, group, group.max(initial=-1) + 1 + np.arange(len(group)))
+    _, row_of_point = np.unique(row_of_point, return_inverse=True)
+    point, slot = np.nonzero(shape.mask)
+    incidence = sp.csr_matrix(
+        (np.ones(len(point)), (row_of_point[point], shape.neighbours[point, slot])),
+        shape=(row_of_point.max(initial=-1) + 1, n_nodes),
+    )
+    coupled = (incidence.T @ incidence).tocsr()  # counts >= 1: no zero is dropped
+    coupled.sort_indices()
+    return interleaved(coupled.indptr, coupled.indices, np.zeros((coupled.nnz, 2, 2)))
