@@ -2,7 +2,9 @@
 
 Each case (domain, cells, target node count) runs in a fresh process, which meshes the
 domain as parefg.geometry.gmsh_mesh.mesh_domain does (same options, same builders) and
-times its phases: "build" (gmsh geometry), "generate" (gmsh.model.mesh.generate(2)) and
+times its phases: "build" (gmsh geometry), "generate" (parefg.geometry.gmsh_mesh.generate:
+gmsh.model.mesh.generate(2), on a coarser mesh with uniform refinements for large
+unstructured clouds, the count in the "refinements" column) and
 "extract" (the NodeCloud: cells, spacing, boundary segments), wall and CPU time (the CPU
 time of this process is the steadier number on a shared machine), with its peak RSS.
 h is chosen from the target count (square: (1/h + 1)^2 nodes; others: the budget's
@@ -15,7 +17,8 @@ Each case also reports the cells' quality: the smallest interior angle of any ce
 A case is DOMAIN:CELLS or DOMAIN:CELLS:ALGORITHM.  "square" and "z" are structured
 (transfinite); "zpoly" is the same Z outline as a generic polygon and "plate" a .geo file,
 both meshed unstructured with parefg's gmsh options, or with Mesh.Algorithm = ALGORITHM
-(5 Delaunay, 6 Frontal-Delaunay, 8 Frontal-Delaunay for quads) when given; ``--algorithms
+(5 Delaunay, 6 Frontal-Delaunay, 8 Frontal-Delaunay for quads) when given, then on the
+whole cloud without refinements; ``--algorithms
 5,6,8`` expands every unstructured case without one over those algorithms.
 
 Prints a markdown table and writes results/bench_meshing.csv.
@@ -100,7 +103,11 @@ def child(domain: str, h: float, cells: str, algorithm: int | None = None) -> di
             gmsh.option.setNumber("Mesh.Algorithm", algorithm)
         times["build"] = time.perf_counter() - start
         start, cpu = time.perf_counter(), time.process_time()
-        gmsh.model.mesh.generate(2)
+        if algorithm is None:
+            refinements = gmsh_mesh.generate(gmsh, built, h)  # as parefg meshes
+        else:  # the algorithm alone, on the whole cloud
+            refinements = 0
+            gmsh.model.mesh.generate(2)
         times["generate"] = time.perf_counter() - start
         times["generate_cpu"] = time.process_time() - cpu
         start, cpu = time.perf_counter(), time.process_time()
@@ -110,6 +117,7 @@ def child(domain: str, h: float, cells: str, algorithm: int | None = None) -> di
         gmsh.finalize()
     return {
         "nodes": cloud.n_nodes,
+        "refinements": refinements,
         "quads": len(cloud.quads),
         "triangles": len(cloud.triangles),
         **{k: round(v, 3) for k, v in times.items()},
@@ -161,9 +169,9 @@ def main():
     algorithms = [a for a in args.algorithms.split(",") if a]
     print(
         "| domain | cells | algorithm | nodes | quads | triangles | generate [s] "
-        "| generate CPU [s] | extract CPU [s] | min angle | 1% angle | RSS [MB] |"
+        "| generate CPU [s] | extract CPU [s] | min angle | 1% angle | RSS [MB] | refinements |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     for case in expand(args.cases.split(","), algorithms):
         for nodes in (float(n) for n in args.nodes.split(",")):
@@ -177,7 +185,7 @@ def main():
                 f"{head} {row['nodes']} | {row['quads']} | {row['triangles']} | "
                 f"{row['generate']:.2f} | {row['generate_cpu']:.2f} | {row['extract_cpu']:.2f} | "
                 f"{row['min_angle']} | "
-                f"{row['p01_angle']} | {row['peak_rss_mb']} |",
+                f"{row['p01_angle']} | {row['peak_rss_mb']} | {row['refinements']} |",
                 flush=True,
             )
     keys = list(dict.fromkeys(key for row in rows for key in row))  # timed-out rows lack some
