@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar, overload
 
 import numpy as np
 import scipy.sparse as sp
@@ -77,19 +77,43 @@ def same_everywhere(comm, value) -> bool:
     return all(other == values[0] for other in values)
 
 
+@overload
+def call_on_root(
+    comm,
+    task: Callable[..., T],
+    *args,
+    expected: tuple[type[Exception], ...] = ...,
+    root: int = ...,
+    broadcast: Literal[True] = ...,
+) -> T: ...
+
+
+@overload
+def call_on_root(
+    comm,
+    task: Callable[..., T],
+    *args,
+    expected: tuple[type[Exception], ...] = ...,
+    root: int = ...,
+    broadcast: Literal[False],
+) -> T | None: ...
+
+
 def call_on_root(
     comm,
     task: Callable[..., T],
     *args,
     expected: tuple[type[Exception], ...] = (InputError,),
     root: int = 0,
-) -> T:
+    broadcast: bool = True,
+) -> T | None:
     """Run ``task(*args)`` on ``root`` only; return its result on every rank.  Collective.
 
     For work only one rank may do (create a directory, read a file): an ``expected``
     exception raised by the task is raised on every rank (:func:`raise_everywhere`); any
     other exception is a defect, raised as it is on ``root`` and as RuntimeError naming
-    it on the other ranks, so every rank ends.  The result is broadcast (pickled).
+    it on the other ranks, so every rank ends.  The result is broadcast (pickled); with
+    ``broadcast`` False it stays on ``root`` and the other ranks get None.
     """
     result, defect = None, None
     failure: tuple[Any, str] | None = None  # (exception class or "internal", message)
@@ -100,7 +124,10 @@ def call_on_root(
             failure = (type(error), str(error))
         except Exception as error:  # a defect: still end every rank, not only the root
             failure, defect = ("internal", f"{type(error).__name__}: {error}"), error
-    failure, result = comm.bcast((failure, result), root=root)
+    if broadcast:
+        failure, result = comm.bcast((failure, result), root=root)
+    else:
+        failure = comm.bcast(failure, root=root)
     if failure is None:
         return result
     kind, message = failure

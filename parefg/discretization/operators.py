@@ -30,7 +30,7 @@ from parefg.discretization.quadrature import Quadrature, cell_quadrature
 from parefg.discretization.size_estimate import BUILT_VALUE_BYTES
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.distribute import partition_on_root
-from parefg.geometry.gmsh_mesh import build_node_cloud
+from parefg.geometry.gmsh_mesh import mesh_on_root
 from parefg.geometry.partition import Partition
 from parefg.parallel import owned_rows, raise_everywhere
 from parefg.profiling import phase
@@ -113,7 +113,7 @@ class _Builder(BoundaryOperators):
         self.timings = {"mesh": 0.0, "neighbours": 0.0, "mls": 0.0, "assembly": 0.0}
         self.n_contact = 0
         with phase(self.timings, "mesh"):
-            cloud = build_node_cloud(
+            cloud = mesh_on_root(  # None on ranks > 0: partition_on_root sends them theirs
                 comm,
                 scene.domain,
                 scene.discretization.h,

@@ -13,6 +13,7 @@ plus ghosts) is the remaining part of issue 13.
 from __future__ import annotations
 
 import numpy as np
+from mpi4py.util.dtlib import from_numpy_dtype
 
 from parefg.errors import InputError
 from parefg.geometry.cloud import NodeCloud
@@ -24,19 +25,22 @@ _CLOUD_ARRAYS = (
 _PARTITION_ARRAYS = ("node_ranges", "quad_owner", "triangle_owner", "segment_owner")
 
 
-def partition_on_root(comm, cloud: NodeCloud) -> tuple[NodeCloud, Partition]:
+def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partition]:
     """``partition_cloud(cloud, comm.size)`` computed on rank 0 only, broadcast.  Collective.
 
-    ``cloud`` must be the same on every rank (it is only read on rank 0).  A bad part
-    count raises the InputError of :func:`partition_cloud` on every rank.
+    ``cloud`` is only read on rank 0 (the other ranks may pass None: the run meshes on
+    rank 0 only, :func:`~parefg.geometry.gmsh_mesh.mesh_on_root`).  A bad part count
+    raises the InputError of :func:`partition_cloud` on every rank.
     """
-    result, message = None, None
+    result, message, part_names = None, None, None
     if comm.rank == 0:
+        assert cloud is not None
+        part_names = list(cloud.part_names)
         try:
             result = partition_cloud(cloud, comm.size)
         except InputError as error:
             message = str(error)
-    message = comm.bcast(message, root=0)
+    message, part_names = comm.bcast((message, part_names), root=0)
     if message is not None:
         raise InputError(message)
     renumbered, partition = result if result is not None else (None, None)
@@ -49,7 +53,7 @@ def partition_on_root(comm, cloud: NodeCloud) -> tuple[NodeCloud, Partition]:
     if comm.rank != 0:
         renumbered = NodeCloud(
             **dict(zip(_CLOUD_ARRAYS, cloud_arrays, strict=True)),
-            part_names=list(cloud.part_names),
+            part_names=part_names,
         )
         partition = Partition(
             n_parts=int(comm.size), **dict(zip(_PARTITION_ARRAYS, part_arrays, strict=True))
@@ -70,6 +74,6 @@ def _bcast_arrays(comm, arrays: list[np.ndarray] | None) -> list[np.ndarray]:
         arrays = [np.empty(shape, dtype=np.dtype(dtype)) for shape, dtype in header]
     assert arrays is not None
     for array in arrays:
-        if array.size:
-            comm.Bcast(array, root=0)
+        if array.size:  # the datatype from the dtype: any byte-order flag of its buffer is moot
+            comm.Bcast([array, from_numpy_dtype(array.dtype)], root=0)
     return arrays

@@ -85,6 +85,28 @@ def build_node_cloud(
     return call_on_root(comm, _jittered_mesh, domain, h, cells, jitter, seed, budget, min_cells)
 
 
+def mesh_on_root(
+    comm,
+    domain: dict,
+    h: float,
+    cells: str = CellType.QUAD,
+    jitter: float = 0.0,
+    seed: int = 0,
+    budget=None,
+    min_cells: int = 1,
+) -> NodeCloud | None:
+    """:func:`build_node_cloud` without its broadcast: the cloud on rank 0, None elsewhere.
+
+    Collective (a failure is raised on every rank).  For the run, which partitions the
+    cloud on rank 0 and sends each rank its arrays once
+    (:func:`~parefg.geometry.distribute.partition_on_root`): no rank but 0 receives the
+    cloud before it is partitioned, and no pickle of the whole cloud is made.
+    """
+    return call_on_root(
+        comm, _jittered_mesh, domain, h, cells, jitter, seed, budget, min_cells, broadcast=False
+    )
+
+
 def _jittered_mesh(
     domain: dict, h: float, cells: str, jitter: float, seed: int, budget, min_cells: int
 ):
@@ -302,7 +324,8 @@ def _extract_cloud(gmsh, built: GmshDomain, cells: str) -> NodeCloud:
     used = np.unique(np.concatenate([quads.ravel(), triangles.ravel()]))
     renumber = np.full(len(all_coords), -1, dtype=np.int64)  # -1: node of no cell
     renumber[used] = np.arange(len(used))
-    coords = np.ascontiguousarray(all_coords[used])  # (n_nodes, DIM)
+    # native float64: gmsh's buffer has an explicit '<' byte order, which MPI buffers reject
+    coords = all_coords[used].astype(np.float64)  # (n_nodes, DIM)
     quads = orient_counter_clockwise(coords, renumber[quads])
     triangles = orient_counter_clockwise(coords, renumber[triangles])
     line_keys, line_parts = _part_line_keys(

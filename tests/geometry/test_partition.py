@@ -132,13 +132,20 @@ def test_more_parts_than_nodes_is_an_input_error(square):
         partition_cloud(square, 0)
 
 
-def test_partition_on_root_equals_partition_on_every_rank(zcloud):
-    """Partition computed on rank 0 and Bcast as buffers == the per-rank computation."""
+@pytest.mark.parametrize("meshed_on", ["every rank", "rank 0"])
+def test_partition_on_root_equals_partition_on_every_rank(zcloud, meshed_on):
+    """Partition computed on rank 0 and Bcast as buffers == the per-rank computation, also
+    when only rank 0 holds the cloud (the run's mesh_on_root: None elsewhere)."""
     from parefg.geometry.distribute import partition_on_root
+    from parefg.geometry.gmsh_mesh import mesh_on_root
 
     comm = MPI.COMM_WORLD
     expected_cloud, expected = partition_cloud(zcloud, comm.size)
-    got_cloud, got = partition_on_root(comm, zcloud)
+    given = zcloud
+    if meshed_on == "rank 0":
+        given = mesh_on_root(comm, {"shape": "z"}, 0.05)
+        assert (given is None) == (comm.rank > 0)
+    got_cloud, got = partition_on_root(comm, given)
     for name in ("coords", "spacing", "quads", "triangles", "segments", "original_index"):
         np.testing.assert_array_equal(getattr(got_cloud, name), getattr(expected_cloud, name))
     for name in ("node_ranges", "quad_owner", "triangle_owner", "segment_owner"):
