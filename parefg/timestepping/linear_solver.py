@@ -21,7 +21,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
-from parefg.parallel import set_from_options
+from parefg.parallel import default_options, set_from_options
 from parefg.petsc_options import EXACT_FACTORIZATIONS
 
 FACTORIZATIONS = ("lu", "cholesky", "ilu", "icc")
@@ -46,10 +46,15 @@ class SolverMethod:
     mass: dict[str, str] = field(default_factory=dict)
     scaled_tolerance: bool = False
     step_by_degree: dict[int, dict[str, str]] = field(default_factory=dict)
+    finest_schwarz: tuple[int, ...] = ()  # degrees whose GAMG gets configure_finest_schwarz
 
     def step_options(self, degree: int | None = None) -> dict[str, str]:
         """The step KSP's options for MLS degree ``degree`` (None: the method's own)."""
         return self.step_by_degree.get(degree, self.step) if degree is not None else self.step
+
+    def wants_finest_schwarz(self, degree: int | None) -> bool:
+        """Whether the step preconditioner's finest level is made overlapping Schwarz."""
+        return degree in self.finest_schwarz
 
 
 # Measured (square, step Jacobian, CG to 1e-8; scripts/bench/bench_iterative.py): a
@@ -80,24 +85,62 @@ _AMG = {
     "pc_gamg_agg_nsmooths": "1",
     "pc_gamg_threshold": "0.05",
     "pc_gamg_reuse_interpolation": "false",  # PETSc 3.18's default is true
-    "mg_levels_ksp_type": "chebyshev",
-    "mg_levels_pc_type": "jacobi",
-}
+}  # levels: GAMG's Chebyshev / Jacobi (PCMG reads mg_levels_ options at set-up, after
+# set_from_options has taken its defaults away again: only given options reach the levels)
 # At m = 3 (s = 3.2) the oscillating near-null vectors are a band of high frequencies (the
 # smallest eigenvalues of the Jacobi-scaled step Jacobian are checkerboard patterns times
 # smooth functions): GAMG's counts grow 1.4x per halving of h (246, 346, 416, 423 at h =
 # 1/16 ... 1/128, CG to 1e-8 on the step Jacobian).  Local solves on overlapping patches
-# remove them: hypre BoomerAMG with its Schwarz smoothers on the three finest levels takes
-# 11, 36, 26, 24 (a strength threshold of 0.7 for the 2D vector problem); measured with
-# scripts/bench/bench_iterative.py and a study of the options (README, iterative solver).
-_AMG_SCHWARZ = {
-    **_CG,
-    "pc_type": "hypre",
-    "pc_hypre_type": "boomeramg",
-    "pc_hypre_boomeramg_strong_threshold": "0.7",
-    "pc_hypre_boomeramg_smooth_type": "Schwarz-smoothers",
-    "pc_hypre_boomeramg_smooth_num_levels": "3",
+# remove them: GAMG keeps its coarse levels and its finest level smooths with Chebyshev on
+# an overlapping additive Schwarz (overlap 1: the matrix graph reaches a whole support; a
+# MUMPS Cholesky per block of about SCHWARZ_BLOCK_ROWS rows).  CG per Newton step on the
+# square (h = 1/8 ... 1/128): 2.0, 2.0, 3.8, 5.8, 8.8 on 1 rank, 2.0, 5.6, 6.0, 5.4, 6.6 on
+# 2 ranks, solve time 0.6-0.9x (1 rank) and 0.17x (2 ranks) of hypre BoomerAMG with its
+# Schwarz smoothers, the former m = 3 default, which took 1.0, 6.4, 27, 16, 15 on 1 rank
+# but 44, 54, 72, 54, 52 on 2 (its Schwarz patches stop at the ranks' interface).  Smaller
+# blocks cost more (512 rows: 11.3 at 1/128, 1.7x the time); PETSc's own Cholesky spent 3x
+# as long in its symbolic phase; ASM on every level hits zero pivots on the coarse rigid
+# modes.  PCMG makes its level smoothers at set-up, so this is applied after each set-up
+# (configure_finest_schwarz), not through options.
+SCHWARZ_BLOCK_ROWS = 2048
+_FINEST_SCHWARZ = {
+    "ksp_type": "chebyshev",
+    "pc_type": "asm",
+    "pc_asm_type": "basic",
+    "pc_asm_overlap": "1",
+    "sub_ksp_type": "preonly",
+    "sub_pc_type": "cholesky",
+    "sub_pc_factor_mat_solver_type": "mumps",
 }
+#: options prefix (after the KSP's own) of the finest Schwarz smoother: -mg_finest_pc_asm_overlap 2
+FINEST_PREFIX = "mg_finest_"
+
+
+def configure_finest_schwarz(pc: PETSc.PC) -> None:
+    """After GAMG ``pc`` was set up: its finest smoother becomes Chebyshev on overlapping
+    additive Schwarz (_FINEST_SCHWARZ; any -mg_finest_ option wins).  Collective.
+
+    A no-op for another PC (a -pc_type given by the user) or a finest level already done
+    (the same set-up).  GAMG makes new smoothers at each set-up for a new matrix: call
+    this after each.  The smoother is renewed as Richardson and back, so that Chebyshev
+    estimates its bounds for ASM instead of keeping those it had for Jacobi.
+    """
+    if pc.getType() != PETSc.PC.Type.GAMG:
+        return
+    smoother = pc.getMGSmoother(pc.getMGLevels() - 1)
+    if smoother.getPC().getType() == PETSc.PC.Type.ASM:
+        return
+    smoother.setType(PETSc.KSP.Type.RICHARDSON)
+    prefix = (pc.getOptionsPrefix() or "") + FINEST_PREFIX
+    smoother.setOptionsPrefix(prefix)
+    rows = smoother.getOperators()[1].getLocalSize()[0]
+    with default_options(prefix, _FINEST_SCHWARZ):  # the block solvers are made at set-up
+        smoother.setFromOptions()
+        if smoother.getPC().getType() == PETSc.PC.Type.ASM:
+            smoother.getPC().setASMLocalSubdomains(max(1, round(rows / SCHWARZ_BLOCK_ROWS)))
+        smoother.setUp()
+
+
 # The mass matrix is SPD with no near-null space: CG + Jacobi.  Measured (true residual
 # to 1e-13, where it stalls near 1e-11): 76 iterations at s = 2.2 (m = 2, h = 1/64), but
 # 4809 / 9524 at the default s = 3.2 (h = 1/32, 1/64) and 10102 at m = 3 (h = 1/32); GAMG
@@ -113,7 +156,7 @@ _MASS = {
 SOLVER_METHODS = {
     "direct": SolverMethod("direct"),
     "iterative": SolverMethod(
-        "iterative", step=_AMG, mass=_MASS, scaled_tolerance=True, step_by_degree={3: _AMG_SCHWARZ}
+        "iterative", step=_AMG, mass=_MASS, scaled_tolerance=True, finest_schwarz=(3,)
     ),
 }
 DEFAULT_SOLVER_METHOD = "direct"
@@ -270,6 +313,7 @@ class LinearStepSolver:
     ):
         """``degree``: the MLS degree, whose step options the method may choose."""
         self.a_const = a_const
+        self.finest_schwarz = SOLVER_METHODS[method].wants_finest_schwarz(degree)
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setOperators(a_const)
         configure_linear_solver(self.ksp, symmetric)
@@ -292,6 +336,8 @@ class LinearStepSolver:
         """Solve A u = b to the step tolerance from the guess u (overwritten).  Collective."""
         if self.factorizations == 0:
             self.ksp.setUp()
+            if self.finest_schwarz:
+                configure_finest_schwarz(self.ksp.getPC())
             self.factorizations = 1
         self.tolerance = max(self.atol, self.rtol * step_scale(self.a_const, b, u, self._residual))
         if self.scaled_tolerance:

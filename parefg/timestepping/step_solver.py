@@ -61,6 +61,7 @@ from parefg.timestepping.linear_solver import (
     SOLVER_METHODS,
     check_factorization,
     check_symmetric_use,
+    configure_finest_schwarz,
     configure_linear_solver,
     is_exact,
     ksp_failure,
@@ -116,6 +117,7 @@ class ContactStepSolver:
         self.comm, self.law = comm, law
         self.method = SOLVER_METHODS[method]
         self._step_options = self.method.step_options(degree)
+        self._finest_schwarz = self.method.wants_finest_schwarz(degree)
         self.symmetric = symmetric  # A_const's symmetry (False with VCI): the factorization
         self.a_const: PETSc.Mat | SharedConstant
         if shared_rows is None:
@@ -233,6 +235,11 @@ class ContactStepSolver:
             add_owned_rows(self.jacobian, contact_rows)
         self._signature = None if varying else active
         self.jacobian_builds += 1
+        if self._finest_schwarz:  # GAMG is built for the new matrix now, then its finest level
+            ksp = snes.getKSP()
+            ksp.setOperators(jacobian, preconditioner)
+            ksp.setUp()
+            configure_finest_schwarz(ksp.getPC())
 
     # -- the VI-aware line search ---------------------------------------------
     def _exact_line_search(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:
