@@ -23,11 +23,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from parefg.geometry.cells import CellType
+from parefg.geometry.cells import UNSTRUCTURED_DENSITY, CellType
 
-# Unstructured gmsh meshes at target size h (measured on polygons, z and .geo domains):
-# N = 1.16 A / h^2 + 0.5 P / h (1.16 ~ 2 / sqrt 3: equilateral triangles).
-UNSTRUCTURED_DENSITY = 1.16
+# Unstructured gmsh meshes at target size h: N = UNSTRUCTURED_DENSITY A / h^2 + 0.5 P / h.
 # Local geometry in units of the node spacing c_I: (nodes per c^2, cell area / c^2), the
 # medians measured on gmsh's unstructured meshes, graded ones included (cloud_size).
 UNSTRUCTURED_LOCAL = {CellType.QUAD: (1.03, 0.97), CellType.TRI: (1.155, 0.43)}

@@ -20,3 +20,8 @@ class CellType(StrEnum):
 
 #: the registry of cell types, as the plain strings of a scene file (the first is the default)
 CELL_TYPES = tuple(member.value for member in CellType)
+
+# Unstructured gmsh meshes at target size h have about this many nodes per h^2 of area
+# (measured on polygons, z and .geo domains; 1.16 ~ 2 / sqrt 3: equilateral triangles).
+# The size estimate and the meshing's choice of refinements read it.
+UNSTRUCTURED_DENSITY = 1.16

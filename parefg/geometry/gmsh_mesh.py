@@ -22,10 +22,9 @@ import tempfile
 
 import numpy as np
 
-from parefg.discretization.size_estimate import UNSTRUCTURED_DENSITY
 from parefg.errors import InputError
 from parefg.geometry import mesh_cache
-from parefg.geometry.cells import CELL_TYPES, CellType
+from parefg.geometry.cells import CELL_TYPES, UNSTRUCTURED_DENSITY, CellType
 from parefg.geometry.cloud import (
     DIM,
     NodeCloud,

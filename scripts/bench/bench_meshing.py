@@ -59,7 +59,7 @@ def spacing_for(domain: str, nodes: float) -> float:
     """Target h giving about ``nodes`` nodes on the domain."""
     if domain == "square":
         return 1.0 / (math.sqrt(nodes) - 1)
-    return math.sqrt(1.16 * AREA[domain] / nodes)  # size_estimate.UNSTRUCTURED_DENSITY
+    return math.sqrt(1.16 * AREA[domain] / nodes)  # geometry.cells.UNSTRUCTURED_DENSITY
 
 
 def smallest_angles(coords, cells) -> np.ndarray:
