@@ -23,6 +23,9 @@ _CLOUD_ARRAYS = (
     "coords", "spacing", "quads", "triangles", "segments", "segment_part", "original_index",
 )  # fmt: skip
 _PARTITION_ARRAYS = ("node_ranges", "quad_owner", "triangle_owner", "segment_owner")
+# elements per Bcast: an MPI count is an int, 2^31 - 1 at most (the coordinates of 1e9 nodes
+# are 2e9 numbers)
+BCAST_CHUNK = 1 << 30
 
 
 def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partition]:
@@ -74,6 +77,8 @@ def _bcast_arrays(comm, arrays: list[np.ndarray] | None) -> list[np.ndarray]:
         arrays = [np.empty(shape, dtype=np.dtype(dtype)) for shape, dtype in header]
     assert arrays is not None
     for array in arrays:
-        if array.size:  # the datatype from the dtype: any byte-order flag of its buffer is moot
-            comm.Bcast([array, from_numpy_dtype(array.dtype)], root=0)
+        flat = array.reshape(-1)  # a view: arrays are contiguous on every rank
+        datatype = from_numpy_dtype(array.dtype)  # any byte-order flag of the buffer is moot
+        for start in range(0, flat.size, BCAST_CHUNK):  # MPI counts are 32-bit ints
+            comm.Bcast([flat[start : start + BCAST_CHUNK], datatype], root=0)
     return arrays

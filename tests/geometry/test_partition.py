@@ -151,3 +151,24 @@ def test_partition_on_root_equals_partition_on_every_rank(zcloud, meshed_on):
     for name in ("node_ranges", "quad_owner", "triangle_owner", "segment_owner"):
         np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
     assert got_cloud.part_names == expected_cloud.part_names
+
+
+def test_broadcast_arrays_arrive_whole_in_chunks(monkeypatch):
+    """Arrays longer than one Bcast's count go in chunks (MPI counts are 32-bit): with
+    chunks of 7 elements, arrays of 0, 5, 7, 30 and 2 x 11 elements of three dtypes arrive
+    bit for bit on every rank."""
+    from parefg.geometry import distribute
+
+    monkeypatch.setattr(distribute, "BCAST_CHUNK", 7)
+    comm = MPI.COMM_WORLD
+    sent = [
+        np.zeros(0),
+        np.arange(5, dtype=np.int64),
+        np.linspace(0.0, 1.0, 7),
+        np.arange(30, dtype=np.int8),
+        np.sqrt(np.arange(22.0)).reshape(2, 11),
+    ]
+    got = distribute._bcast_arrays(comm, sent if comm.rank == 0 else None)
+    for expected, array in zip(sent, got, strict=True):
+        assert array.dtype == expected.dtype and array.shape == expected.shape
+        np.testing.assert_array_equal(array, expected)
