@@ -28,7 +28,17 @@ from pathlib import Path
 import benchlib
 
 PAREFG = str(Path(sys.executable).with_name("parefg"))
-PHASES = ("mesh", "mls", "assembly", "factorization", "solve", "output", "total")
+PHASES = (
+    "mesh",
+    "neighbours",
+    "mls",
+    "assembly",
+    "factorization",
+    "solve",
+    "output",
+    "errors",
+    "total",
+)
 MAX_MEMORY_GB = 20  # the machine's 24 GB less the system: the budget is not under test here
 DEFAULT_CASES = "1:0.0125,1:0.00625,2:0.025,2:0.0125,1:0.003125:iterative,2:0.00625:iterative"
 
