@@ -32,7 +32,8 @@ class PointGradients:
 
     ``keep`` stores each block's sorted neighbours and shape gradients after the first use
     (compact: 20 bytes per point and neighbour), for point sets evaluated repeatedly (the
-    nodes, at output steps); otherwise nothing is stored between calls.  ``kept`` passes
+    nodes, at output steps); otherwise only the sorted list of the nodes the points reach
+    is stored between calls.  ``kept`` passes
     those blocks (:func:`sorted_gradients` of consecutive runs of the points, in order)
     when the builder has already evaluated the shape gradients at the points.
     """
@@ -48,7 +49,7 @@ class PointGradients:
         # None while the owning PointSet has released its points (PointSet.release_points)
         self.points: np.ndarray | None = points
         self.kept = kept  # (nodes, dphi) per block
-        self._reached: np.ndarray | None = None  # sorted nodes the points reach (kept sets)
+        self._reached: np.ndarray | None = None  # sorted nodes the points reach, once found
 
     def _points(self) -> np.ndarray:
         """The points (restored by the owner before any evaluation)."""
@@ -81,7 +82,9 @@ class PointGradients:
         every node whose support meets the points' bounding box: a superset of the
         neighbour lists found in one pass over the nodes, not a neighbour search of all the
         points (which made a 2-rank run's error norms cost what 1 rank's did: 2.4 s for
-        2.1 s at m = 2, 51842 DOFs).  Kept: the points do not change.
+        2.1 s at m = 2, 51842 DOFs).  Stored after the first call: the points do not
+        change.  A rank whose points lie far apart (boundary points on opposite sides) has
+        a box that holds most nodes: still correct, only more values gathered.
         """
         if self._reached is not None:
             return self._reached

@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 from mpi4py.util.dtlib import from_numpy_dtype
 
-from parefg.errors import InputError
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.partition import Partition, partition_cloud
+from parefg.parallel import call_on_root
 
 _CLOUD_ARRAYS = (
     "coords", "spacing", "quads", "triangles", "segments", "segment_part", "original_index",
@@ -35,17 +35,9 @@ def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partiti
     rank 0 only, :func:`~parefg.geometry.gmsh_mesh.mesh_on_root`).  A bad part count
     raises the InputError of :func:`partition_cloud` on every rank.
     """
-    result, message, part_names = None, None, None
-    if comm.rank == 0:
-        assert cloud is not None
-        part_names = list(cloud.part_names)
-        try:
-            result = partition_cloud(cloud, comm.size)
-        except InputError as error:
-            message = str(error)
-    message, part_names = comm.bcast((message, part_names), root=0)
-    if message is not None:
-        raise InputError(message)
+    # any failure on rank 0 (a bad part count, memory) ends every rank (call_on_root)
+    result = call_on_root(comm, partition_cloud, cloud, comm.size, broadcast=False)
+    part_names = comm.bcast(None if cloud is None else list(cloud.part_names), root=0)
     renumbered, partition = result if result is not None else (None, None)
     cloud_arrays = _bcast_arrays(
         comm, None if renumbered is None else [getattr(renumbered, a) for a in _CLOUD_ARRAYS]

@@ -43,6 +43,8 @@ FREE_PART = "_free"
 # gmsh's unstructured algorithms mesh at most about this many nodes; a finer cloud is a
 # coarser mesh split uniformly (:func:`generate`).
 DIRECT_NODES = 20_000
+# a split curve may have this many times the segments of its mesh at h (_scaling_refinements)
+CURVE_SCALING_SLACK = 1.25
 
 
 def build_node_cloud(
@@ -227,14 +229,15 @@ def generate(gmsh, built: GmshDomain, h: float) -> int:
     Structured (transfinite) domains are meshed as they are.  An unstructured domain whose
     estimated node count (:data:`UNSTRUCTURED_DENSITY` per h^2 of its surfaces' bounding
     boxes) exceeds :data:`DIRECT_NODES` is meshed at sizes 2^k times larger (every size:
-    Mesh.MeshSizeFactor scales h, the .geo file's own sizes and the budget's floor alike)
-    and split uniformly k times (gmsh.model.mesh.refine: each triangle into 4 triangles,
-    each quad into 4 quads; new boundary nodes are placed on the curves), so that at most
-    about DIRECT_NODES nodes are meshed by gmsh's algorithms.  Frontal-Delaunay and above
-    all Blossom recombination grow faster than linearly (measured, plate with a hole,
+    Mesh.MeshSizeFactor scales h, the .geo file's own sizes and fields, and the budget's
+    floor alike) and split uniformly k times (gmsh.model.mesh.refine: each triangle into 4
+    triangles, each quad into 4 quads; new boundary nodes are placed on the curves), so
+    that gmsh's algorithms mesh about DIRECT_NODES nodes.  Frontal-Delaunay and above all
+    Blossom recombination grow faster than linearly (measured, plate with a hole,
     bench_meshing.py: 1e5 nodes 4.8 s as triangles, 64 s as quads; 1e6 nodes 133 s as
     triangles), splitting is linear: 1e6 nodes in 10 s either way, with the same smallest
-    angles (triangles 40 / quads 45 degrees; 1st percentile 46 / 61).
+    angles (triangles 40 / quads 45 degrees; 1st percentile 46 / 61).  k is lowered until
+    every curve's coarse mesh scales (:func:`_scaling_refinements`).
     """
     refinements = 0
     if not built.structured:
@@ -242,10 +245,42 @@ def generate(gmsh, built: GmshDomain, h: float) -> int:
         estimate = UNSTRUCTURED_DENSITY * area / h**2
         while estimate > DIRECT_NODES * 4**refinements:
             refinements += 1
+        refinements = _scaling_refinements(gmsh, refinements)
         gmsh.option.setNumber("Mesh.MeshSizeFactor", 2.0**refinements)
     gmsh.model.mesh.generate(2)
     for _ in range(refinements):
         gmsh.model.mesh.refine()
+    return refinements
+
+
+def _scaling_refinements(gmsh, refinements: int) -> int:
+    """The largest k <= ``refinements`` whose coarse curve meshes scale with the sizes.
+
+    A curve whose segment count does not follow the sizes (a .geo's Transfinite Curve, a
+    small hole at gmsh's minimum points per curve) would be split into 2^k times its fixed
+    count: many more segments, and a denser mesh around them, than meshing at h gives.
+    So each curve's 1D mesh at sizes x 2^k, split k times, may have at most
+    CURVE_SCALING_SLACK times the segments of its 1D mesh at h, plus one: a curve shorter
+    than about 4 (2^k - 2) h (rounded up to whole coarse segments) or at a fixed count lowers
+    k.  The 1D meshes cost little (the boundary only).
+    """
+
+    def segments_per_curve(factor: float) -> np.ndarray:
+        gmsh.option.setNumber("Mesh.MeshSizeFactor", factor)
+        gmsh.model.mesh.generate(1)
+        counts = [len(gmsh.model.mesh.getElementsByType(1, tag)[0]) for _, tag in curves]
+        gmsh.model.mesh.clear()
+        return np.array(counts)
+
+    curves = gmsh.model.getEntities(1)
+    if refinements == 0 or not curves:
+        return refinements
+    at_h = segments_per_curve(1.0)
+    while refinements > 0:
+        split = 2**refinements * segments_per_curve(2.0**refinements)
+        if np.all(split <= CURVE_SCALING_SLACK * at_h + 1):
+            break
+        refinements -= 1
     return refinements
 
 
@@ -323,8 +358,8 @@ def _extract_cloud(gmsh, built: GmshDomain, cells: str) -> NodeCloud:
     used = np.unique(np.concatenate([quads.ravel(), triangles.ravel()]))
     renumber = np.full(len(all_coords), -1, dtype=np.int64)  # -1: node of no cell
     renumber[used] = np.arange(len(used))
-    # native float64: gmsh's buffer has an explicit '<' byte order, which MPI buffers reject
-    coords = all_coords[used].astype(np.float64)  # (n_nodes, DIM)
+    # native float64 without another copy: gmsh's arrays carry an explicit '<' byte order
+    coords = all_coords[used].view(np.float64)  # (n_nodes, DIM)
     quads = orient_counter_clockwise(coords, renumber[quads])
     triangles = orient_counter_clockwise(coords, renumber[triangles])
     line_keys, line_parts = _part_line_keys(

@@ -37,20 +37,15 @@ class SolverMethod:
     ``step`` are options of the step KSP (read unprefixed: ``ksp_type``, ``pc_type``, ...),
     ``mass`` those of the mass KSP (read with prefix ``mass_``), both without the prefix.
     ``scaled_tolerance``: the step KSP stops at KSP_TOLERANCE_FRACTION of the step
-    tolerance, unless -ksp_atol is given.  ``step_by_degree``: the step options that
-    replace ``step`` for an MLS degree (see :meth:`step_options`).
+    tolerance, unless -ksp_atol is given.  ``finest_schwarz``: the MLS degrees whose step
+    preconditioner (GAMG) gets :func:`configure_finest_schwarz` after each set-up.
     """
 
     name: str
     step: dict[str, str] = field(default_factory=dict)
     mass: dict[str, str] = field(default_factory=dict)
     scaled_tolerance: bool = False
-    step_by_degree: dict[int, dict[str, str]] = field(default_factory=dict)
-    finest_schwarz: tuple[int, ...] = ()  # degrees whose GAMG gets configure_finest_schwarz
-
-    def step_options(self, degree: int | None = None) -> dict[str, str]:
-        """The step KSP's options for MLS degree ``degree`` (None: the method's own)."""
-        return self.step_by_degree.get(degree, self.step) if degree is not None else self.step
+    finest_schwarz: tuple[int, ...] = ()
 
     def wants_finest_schwarz(self, degree: int | None) -> bool:
         """Whether the step preconditioner's finest level is made overlapping Schwarz."""
@@ -84,9 +79,10 @@ _AMG = {
     "pc_gamg_type": "agg",
     "pc_gamg_agg_nsmooths": "1",
     "pc_gamg_threshold": "0.05",
+    # The levels smooth with GAMG's own Chebyshev / Jacobi.  No mg_levels_ defaults here:
+    # PCMG reads them at set-up, after set_from_options has withdrawn its defaults again.
     "pc_gamg_reuse_interpolation": "false",  # PETSc 3.18's default is true
-}  # levels: GAMG's Chebyshev / Jacobi (PCMG reads mg_levels_ options at set-up, after
-# set_from_options has taken its defaults away again: only given options reach the levels)
+}
 # At m = 3 (s = 3.2) the oscillating near-null vectors are a band of high frequencies (the
 # smallest eigenvalues of the Jacobi-scaled step Jacobian are checkerboard patterns times
 # smooth functions): GAMG's counts grow 1.4x per halving of h (246, 346, 416, 423 at h =
@@ -118,14 +114,17 @@ FINEST_PREFIX = "mg_finest_"
 
 def configure_finest_schwarz(pc: PETSc.PC) -> None:
     """After GAMG ``pc`` was set up: its finest smoother becomes Chebyshev on overlapping
-    additive Schwarz (_FINEST_SCHWARZ; any -mg_finest_ option wins).  Collective.
+    additive Schwarz (_FINEST_SCHWARZ, blocks of ~SCHWARZ_BLOCK_ROWS rows; any -mg_finest_
+    option wins, -mg_finest_pc_asm_blocks included).  Collective.
 
     A no-op for another PC (a -pc_type given by the user) or a finest level already done
     (the same set-up).  GAMG makes new smoothers at each set-up for a new matrix: call
     this after each.  The smoother is renewed as Richardson and back, so that Chebyshev
-    estimates its bounds for ASM instead of keeping those it had for Jacobi.
+    estimates its bounds for ASM instead of keeping those it had for Jacobi.  Its options
+    prefix becomes -mg_finest_: -mg_levels_ options no longer reach that level.  A GAMG
+    of one level (a tiny matrix) has no smoother to replace: it is left as it is.
     """
-    if pc.getType() != PETSc.PC.Type.GAMG:
+    if pc.getType() != PETSc.PC.Type.GAMG or pc.getMGLevels() < 2:
         return
     smoother = pc.getMGSmoother(pc.getMGLevels() - 1)
     if smoother.getPC().getType() == PETSc.PC.Type.ASM:
@@ -136,7 +135,8 @@ def configure_finest_schwarz(pc: PETSc.PC) -> None:
     rows = smoother.getOperators()[1].getLocalSize()[0]
     with default_options(prefix, _FINEST_SCHWARZ):  # the block solvers are made at set-up
         smoother.setFromOptions()
-        if smoother.getPC().getType() == PETSc.PC.Type.ASM:
+        asm = smoother.getPC().getType() == PETSc.PC.Type.ASM
+        if asm and not PETSc.Options().hasName(prefix + "pc_asm_blocks"):
             smoother.getPC().setASMLocalSubdomains(max(1, round(rows / SCHWARZ_BLOCK_ROWS)))
         smoother.setUp()
 
@@ -318,7 +318,7 @@ class LinearStepSolver:
         self.ksp.setOperators(a_const)
         configure_linear_solver(self.ksp, symmetric)
         # the step's options are the unprefixed ones (-ksp_type, as for the contact step)
-        set_from_options(self.ksp, "", SOLVER_METHODS[method].step_options(degree))
+        set_from_options(self.ksp, "", SOLVER_METHODS[method].step)
         self.scaled_tolerance = scaled_ksp_tolerance(SOLVER_METHODS[method])
         check_symmetric_use(self.ksp, symmetric)
         check_factorization(self.ksp, a_const)

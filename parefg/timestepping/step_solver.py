@@ -116,7 +116,7 @@ class ContactStepSolver:
         caller then uses ``self.a_const``, not the matrix it gave); None: J is a copy."""
         self.comm, self.law = comm, law
         self.method = SOLVER_METHODS[method]
-        self._step_options = self.method.step_options(degree)
+        self._step_options = self.method.step
         self._finest_schwarz = self.method.wants_finest_schwarz(degree)
         self.symmetric = symmetric  # A_const's symmetry (False with VCI): the factorization
         self.a_const: PETSc.Mat | SharedConstant

@@ -99,7 +99,7 @@ def _case(setting: str, degree: int, n: int, args) -> dict | None:
     jacobian = iterative.solver.jacobian
     # the method's own preconditioner for this degree (GAMG; its finest level Schwarz at m = 3)
     method = SOLVER_METHODS["iterative"]
-    own, schwarz = method.step_options(degree), method.wants_finest_schwarz(degree)
+    own, schwarz = method.step, method.wants_finest_schwarz(degree)
     row["method"], row["method_levels"] = _cg_iterations(jacobian, own, schwarz)
     for name in filter(None, args.preconditioners.split(",")):
         row[name], _ = _cg_iterations(jacobian, PRECONDITIONERS[name])

@@ -37,6 +37,8 @@ import time
 import benchlib
 import numpy as np
 
+from parefg.geometry.cells import UNSTRUCTURED_DENSITY
+
 PLATE = {
     "shape": "geo",
     "file": "meshes/plate_with_hole.geo",
@@ -59,7 +61,7 @@ def spacing_for(domain: str, nodes: float) -> float:
     """Target h giving about ``nodes`` nodes on the domain."""
     if domain == "square":
         return 1.0 / (math.sqrt(nodes) - 1)
-    return math.sqrt(1.16 * AREA[domain] / nodes)  # geometry.cells.UNSTRUCTURED_DENSITY
+    return math.sqrt(UNSTRUCTURED_DENSITY * AREA[domain] / nodes)
 
 
 def smallest_angles(coords, cells) -> np.ndarray:

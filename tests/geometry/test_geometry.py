@@ -404,3 +404,51 @@ def test_a_large_unstructured_cloud_is_a_split_coarser_mesh(cells, monkeypatch):
     a = hole[:, 0]
     hole_vertices = a[np.argsort(np.arctan2(a[:, 1] - HOLE_CENTRE[1], a[:, 0] - HOLE_CENTRE[0]))]
     check_common(split, plate_membership(hole_vertices))
+
+
+SMALL_HOLE_GEO = """SetFactory("Built-in");
+Point(1) = {0, 0, 0}; Point(2) = {1, 0, 0}; Point(3) = {1, 1, 0}; Point(4) = {0, 1, 0};
+Line(1) = {1, 2}; Line(2) = {2, 3}; Line(3) = {3, 4}; Line(4) = {4, 1};
+Point(5) = {0.5, 0.5, 0}; Point(6) = {0.51, 0.5, 0}; Point(7) = {0.5, 0.51, 0};
+Point(8) = {0.49, 0.5, 0}; Point(9) = {0.5, 0.49, 0};
+Circle(5) = {6, 5, 7}; Circle(6) = {7, 5, 8}; Circle(7) = {8, 5, 9}; Circle(8) = {9, 5, 6};
+Curve Loop(1) = {1, 2, 3, 4}; Curve Loop(2) = {5, 6, 7, 8};
+Plane Surface(1) = {1, 2};
+Physical Curve("bottom") = {1}; Physical Curve("rest") = {2, 3, 4};
+Physical Curve("hole") = {5, 6, 7, 8};
+"""
+TRANSFINITE_GEO = """SetFactory("Built-in");
+Point(1) = {0, 0, 0}; Point(2) = {1, 0, 0}; Point(3) = {1, 1, 0}; Point(4) = {0, 1, 0};
+Line(1) = {1, 2}; Line(2) = {2, 3}; Line(3) = {3, 4}; Line(4) = {4, 1};
+Curve Loop(1) = {1, 2, 3, 4}; Plane Surface(1) = {1};
+Transfinite Curve {1, 2, 3, 4} = 21;
+Physical Curve("bottom") = {1}; Physical Curve("rest") = {2, 3, 4};
+"""
+
+
+@pytest.mark.parametrize(
+    "text, parts, h",
+    [
+        (SMALL_HOLE_GEO, ["bottom", "rest", "hole"], 0.02),
+        (TRANSFINITE_GEO, ["bottom", "rest"], 0.01),
+    ],
+    ids=["small hole", "transfinite curves"],
+)
+def test_curves_that_do_not_scale_are_not_split(text, parts, h, tmp_path, monkeypatch):
+    """A curve whose segment count does not follow the sizes (a hole of radius h / 2 at
+    gmsh's minimum points per circle; a .geo's Transfinite Curve) would be split into 2^k
+    times its count: the split is refused (k = 0) and the cloud is the one meshed at h.
+    Measured before the check, hole of radius 0.01 at h = 0.02: 8104 nodes against 4494,
+    smallest angle 21 against 38 degrees."""
+    path = tmp_path / "domain.geo"
+    path.write_text(text)
+    domain = {"shape": "geo", "file": str(path), "parts": parts}
+    direct = gmsh_mesh.mesh_domain(domain, h, "tri")
+    counts = []
+    generate = gmsh_mesh.generate
+    monkeypatch.setattr(gmsh_mesh, "generate", lambda *a: counts.append(generate(*a)) or 0)
+    monkeypatch.setattr(gmsh_mesh, "DIRECT_NODES", 300)  # the estimate asks for k >= 1
+    checked = gmsh_mesh.mesh_domain(domain, h, "tri")
+    assert counts == [0]
+    np.testing.assert_array_equal(checked.coords, direct.coords)
+    np.testing.assert_array_equal(checked.triangles, direct.triangles)

@@ -78,15 +78,22 @@ def test_call_on_root_runs_once_and_broadcasts_the_result(comm):
     assert len(calls) == (1 if comm.rank == 0 else 0)
 
 
-def test_call_on_root_raises_an_expected_failure_everywhere(comm):
+def test_call_on_root_keeps_the_result_on_the_root_without_broadcast(comm):
+    result = call_on_root(comm, lambda value: [value], 7, broadcast=False)
+    assert result == ([7] if comm.rank == 0 else None)
+
+
+@pytest.mark.parametrize("broadcast", [True, False])
+def test_call_on_root_raises_an_expected_failure_everywhere(comm, broadcast):
     def task():
         raise InputError("--out runs: exists and is not a directory")
 
     with pytest.raises(InputError, match="exists and is not a directory"):
-        call_on_root(comm, task)
+        call_on_root(comm, task, broadcast=broadcast)
 
 
-def test_call_on_root_ends_every_rank_on_a_defect(comm):
+@pytest.mark.parametrize("broadcast", [True, False])
+def test_call_on_root_ends_every_rank_on_a_defect(comm, broadcast):
     """A defect on the root is raised there as it is; the other ranks do not wait forever."""
 
     def task():
@@ -94,7 +101,7 @@ def test_call_on_root_ends_every_rank_on_a_defect(comm):
 
     expected = KeyError if comm.rank == 0 else RuntimeError
     with pytest.raises(expected, match="u"):
-        call_on_root(comm, task)
+        call_on_root(comm, task, broadcast=broadcast)
 
 
 def test_wait_for_all_returns_when_every_rank_arrives(comm):
