@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any, Literal, TypeVar, overload
+from typing import Any, TypeVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -77,43 +77,19 @@ def same_everywhere(comm, value) -> bool:
     return all(other == values[0] for other in values)
 
 
-@overload
-def call_on_root(
-    comm,
-    task: Callable[..., T],
-    *args,
-    expected: tuple[type[Exception], ...] = ...,
-    root: int = ...,
-    broadcast: Literal[True] = ...,
-) -> T: ...
-
-
-@overload
-def call_on_root(
-    comm,
-    task: Callable[..., T],
-    *args,
-    expected: tuple[type[Exception], ...] = ...,
-    root: int = ...,
-    broadcast: Literal[False],
-) -> T | None: ...
-
-
-def call_on_root(
+def run_on_root(
     comm,
     task: Callable[..., T],
     *args,
     expected: tuple[type[Exception], ...] = (InputError,),
     root: int = 0,
-    broadcast: bool = True,
 ) -> T | None:
-    """Run ``task(*args)`` on ``root`` only; return its result on every rank.  Collective.
+    """Run ``task(*args)`` on ``root`` only; its result there, None on the other ranks.
 
-    For work only one rank may do (create a directory, read a file): an ``expected``
-    exception raised by the task is raised on every rank (:func:`raise_everywhere`); any
-    other exception is a defect, raised as it is on ``root`` and as RuntimeError naming
-    it on the other ranks, so every rank ends.  The result is broadcast (pickled); with
-    ``broadcast`` False it stays on ``root`` and the other ranks get None.
+    Collective.  For work only one rank may do (create a directory, read a file, mesh):
+    an ``expected`` exception raised by the task is raised on every rank
+    (:func:`raise_everywhere`); any other exception is a defect, raised as it is on
+    ``root`` and as RuntimeError naming it on the other ranks, so every rank ends.
     """
     result, defect = None, None
     failure: tuple[Any, str] | None = None  # (exception class or "internal", message)
@@ -124,10 +100,7 @@ def call_on_root(
             failure = (type(error), str(error))
         except Exception as error:  # a defect: still end every rank, not only the root
             failure, defect = ("internal", f"{type(error).__name__}: {error}"), error
-    if broadcast:
-        failure, result = comm.bcast((failure, result), root=root)
-    else:
-        failure = comm.bcast(failure, root=root)
+    failure = comm.bcast(failure, root=root)
     if failure is None:
         return result
     kind, message = failure
@@ -136,6 +109,12 @@ def call_on_root(
     if kind == "internal":
         raise RuntimeError(f"{task.__name__} failed on rank {root}: {message}")
     raise kind(message)
+
+
+def call_on_root(comm, task: Callable[..., T], *args, **options) -> T:
+    """:func:`run_on_root` (the same arguments), its result broadcast (pickled) to every
+    rank.  Collective."""
+    return comm.bcast(run_on_root(comm, task, *args, **options), root=options.get("root", 0))
 
 
 def wait_for_all(comm, patience: float | None, abort_code: int) -> None:

@@ -17,7 +17,7 @@ from mpi4py.util.dtlib import from_numpy_dtype
 
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.partition import Partition, partition_cloud
-from parefg.parallel import call_on_root
+from parefg.parallel import run_on_root
 
 _CLOUD_ARRAYS = (
     "coords", "spacing", "quads", "triangles", "segments", "segment_part", "original_index",
@@ -35,8 +35,8 @@ def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partiti
     rank 0 only, :func:`~parefg.geometry.gmsh_mesh.mesh_on_root`).  A bad part count
     raises the InputError of :func:`partition_cloud` on every rank.
     """
-    # any failure on rank 0 (a bad part count, memory) ends every rank (call_on_root)
-    result = call_on_root(comm, partition_cloud, cloud, comm.size, broadcast=False)
+    # any failure on rank 0 (a bad part count, memory) ends every rank (run_on_root)
+    result = run_on_root(comm, partition_cloud, cloud, comm.size)
     part_names = comm.bcast(None if cloud is None else list(cloud.part_names), root=0)
     renumbered, partition = result if result is not None else (None, None)
     cloud_arrays = _bcast_arrays(

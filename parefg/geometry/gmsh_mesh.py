@@ -6,7 +6,8 @@ mesh into a :class:`~parefg.geometry.cloud.NodeCloud`: the EFG nodes (the mesh
 vertices), the background integration cells (quadrilaterals and/or triangles,
 counter-clockwise) and the boundary segments tagged with the boundary part they belong
 to; optionally its interior nodes are jittered (:mod:`parefg.geometry.jitter`).
-:func:`build_node_cloud` then broadcasts the cloud, so every rank holds the same arrays.
+:func:`mesh_on_root` keeps the cloud on rank 0 (the run partitions it there);
+:func:`build_node_cloud` broadcasts it, so every rank holds the same arrays.
 
 gmsh runs in a sealed session: stdin reads /dev/null, HOME is a private temporary
 directory and no user configuration is read.
@@ -34,7 +35,7 @@ from parefg.geometry.cloud import (
 )
 from parefg.geometry.jitter import jitter_cloud
 from parefg.geometry.shapes import SHAPES, GmshDomain
-from parefg.parallel import call_on_root
+from parefg.parallel import run_on_root
 
 # gmsh element type codes of first-order cells.
 GMSH_TRIANGLE, GMSH_QUAD = 2, 3
@@ -47,7 +48,7 @@ DIRECT_NODES = 20_000
 CURVE_SCALING_SLACK = 1.25
 
 
-def build_node_cloud(
+def mesh_on_root(
     comm,
     domain: dict,
     h: float,
@@ -56,12 +57,14 @@ def build_node_cloud(
     seed: int = 0,
     budget=None,
     min_cells: int = 1,
-) -> NodeCloud:
-    """Mesh a domain with gmsh on rank 0 and broadcast the node cloud.
+) -> NodeCloud | None:
+    """Mesh a domain with gmsh on rank 0: the node cloud there, None on the other ranks.
 
     Collective.  Any failure on rank 0 (bad geometry, unreadable .geo, unknown
     physical name, empty part) is raised as :class:`InputError` on every rank
-    (:func:`~parefg.parallel.call_on_root`), so no rank is left waiting.
+    (:func:`~parefg.parallel.run_on_root`), so no rank is left waiting.  The run
+    partitions the cloud on rank 0 and sends each rank its arrays once
+    (:func:`~parefg.geometry.distribute.partition_on_root`): no pickle of the whole cloud.
 
     Parameters
     ----------
@@ -83,35 +86,21 @@ def build_node_cloud(
         At least that many cells along each curve of a domain meshed as transfinite
         patches ("z"; the MLS degree m, see :class:`~parefg.geometry.shapes.Shape`).
     """
-    return call_on_root(comm, _jittered_mesh, domain, h, cells, jitter, seed, budget, min_cells)
+    return run_on_root(comm, _jittered_mesh, domain, h, cells, jitter, seed, budget, min_cells)
 
 
-def mesh_on_root(
-    comm,
-    domain: dict,
-    h: float,
-    cells: str = CellType.QUAD,
-    jitter: float = 0.0,
-    seed: int = 0,
-    budget=None,
-    min_cells: int = 1,
-) -> NodeCloud | None:
-    """:func:`build_node_cloud` without its broadcast: the cloud on rank 0, None elsewhere.
+def build_node_cloud(comm, *args, **kwargs) -> NodeCloud:
+    """:func:`mesh_on_root` (the same arguments), its cloud broadcast to every rank.
 
-    Collective (a failure is raised on every rank).  For the run, which partitions the
-    cloud on rank 0 and sends each rank its arrays once
-    (:func:`~parefg.geometry.distribute.partition_on_root`): no rank but 0 receives the
-    cloud before it is partitioned, and no pickle of the whole cloud is made.
+    Collective.  For callers that want the whole cloud everywhere (tests, benchmarks).
     """
-    return call_on_root(
-        comm, _jittered_mesh, domain, h, cells, jitter, seed, budget, min_cells, broadcast=False
-    )
+    return comm.bcast(mesh_on_root(comm, *args, **kwargs), root=0)
 
 
 def _jittered_mesh(
     domain: dict, h: float, cells: str, jitter: float, seed: int, budget, min_cells: int
 ):
-    """:func:`build_node_cloud` on one rank: the meshed (or cached), jittered cloud."""
+    """:func:`mesh_on_root`'s task: the meshed (or cached), jittered cloud."""
     in_memory = mesh_cache.memory_key(domain, h, cells, min_cells)
     cloud = mesh_cache.recall(in_memory)
     if cloud is None:

@@ -13,6 +13,7 @@ from parefg.parallel import (
     default_options,
     raise_everywhere,
     raise_unless_everywhere,
+    run_on_root,
     same_everywhere,
     set_from_options,
     wait_for_all,
@@ -78,22 +79,22 @@ def test_call_on_root_runs_once_and_broadcasts_the_result(comm):
     assert len(calls) == (1 if comm.rank == 0 else 0)
 
 
-def test_call_on_root_keeps_the_result_on_the_root_without_broadcast(comm):
-    result = call_on_root(comm, lambda value: [value], 7, broadcast=False)
+def test_run_on_root_keeps_the_result_on_the_root(comm):
+    result = run_on_root(comm, lambda value: [value], 7)
     assert result == ([7] if comm.rank == 0 else None)
 
 
-@pytest.mark.parametrize("broadcast", [True, False])
-def test_call_on_root_raises_an_expected_failure_everywhere(comm, broadcast):
+@pytest.mark.parametrize("on_root", [call_on_root, run_on_root])
+def test_call_on_root_raises_an_expected_failure_everywhere(comm, on_root):
     def task():
         raise InputError("--out runs: exists and is not a directory")
 
     with pytest.raises(InputError, match="exists and is not a directory"):
-        call_on_root(comm, task, broadcast=broadcast)
+        on_root(comm, task)
 
 
-@pytest.mark.parametrize("broadcast", [True, False])
-def test_call_on_root_ends_every_rank_on_a_defect(comm, broadcast):
+@pytest.mark.parametrize("on_root", [call_on_root, run_on_root])
+def test_call_on_root_ends_every_rank_on_a_defect(comm, on_root):
     """A defect on the root is raised there as it is; the other ranks do not wait forever."""
 
     def task():
@@ -101,7 +102,7 @@ def test_call_on_root_ends_every_rank_on_a_defect(comm, broadcast):
 
     expected = KeyError if comm.rank == 0 else RuntimeError
     with pytest.raises(expected, match="u"):
-        call_on_root(comm, task, broadcast=broadcast)
+        on_root(comm, task)
 
 
 def test_wait_for_all_returns_when_every_rank_arrives(comm):
