@@ -141,6 +141,14 @@ def configure_finest_schwarz(pc: PETSc.PC) -> None:
         smoother.setUp()
 
 
+def set_up_step_ksp(ksp: PETSc.KSP, finest_schwarz: bool) -> None:
+    """Set the step KSP up for its current operators, then (``finest_schwarz``) its GAMG's
+    finest level (:func:`configure_finest_schwarz`).  Collective."""
+    ksp.setUp()
+    if finest_schwarz:
+        configure_finest_schwarz(ksp.getPC())
+
+
 # The mass matrix is SPD with no near-null space: CG + Jacobi.  Measured (true residual
 # to 1e-13, where it stalls near 1e-11): 76 iterations at s = 2.2 (m = 2, h = 1/64), but
 # 4809 / 9524 at the default s = 3.2 (h = 1/32, 1/64) and 10102 at m = 3 (h = 1/32); GAMG
@@ -311,7 +319,7 @@ class LinearStepSolver:
         symmetric: bool = True,
         degree: int | None = None,
     ):
-        """``degree``: the MLS degree, whose step options the method may choose."""
+        """``degree``: the MLS degree, whose preconditioner the method may adapt."""
         self.a_const = a_const
         self.finest_schwarz = SOLVER_METHODS[method].wants_finest_schwarz(degree)
         self.ksp = PETSc.KSP().create(comm)
@@ -335,9 +343,7 @@ class LinearStepSolver:
     def solve(self, b: PETSc.Vec, u: PETSc.Vec, t: float) -> tuple[int, int]:
         """Solve A u = b to the step tolerance from the guess u (overwritten).  Collective."""
         if self.factorizations == 0:
-            self.ksp.setUp()
-            if self.finest_schwarz:
-                configure_finest_schwarz(self.ksp.getPC())
+            set_up_step_ksp(self.ksp, self.finest_schwarz)
             self.factorizations = 1
         self.tolerance = max(self.atol, self.rtol * step_scale(self.a_const, b, u, self._residual))
         if self.scaled_tolerance:

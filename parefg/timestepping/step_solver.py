@@ -61,13 +61,13 @@ from parefg.timestepping.linear_solver import (
     SOLVER_METHODS,
     check_factorization,
     check_symmetric_use,
-    configure_finest_schwarz,
     configure_linear_solver,
     is_exact,
     ksp_failure,
     reason_name,
     scaled_ksp_tolerance,
     set_ksp_tolerance,
+    set_up_step_ksp,
     step_scale,
 )
 from parefg.timestepping.shared_jacobian import SharedConstant
@@ -110,13 +110,12 @@ class ContactStepSolver:
         shared_rows: np.ndarray | None = None,
         degree: int | None = None,
     ):
-        """``degree``: the MLS degree, whose step options the method may choose.
+        """``degree``: the MLS degree, whose preconditioner the method may adapt.
         ``shared_rows``: the local Gamma_C rows, to keep A_const in the Jacobian's
         storage (:class:`~parefg.timestepping.shared_jacobian.SharedConstant`; the
         caller then uses ``self.a_const``, not the matrix it gave); None: J is a copy."""
         self.comm, self.law = comm, law
         self.method = SOLVER_METHODS[method]
-        self._step_options = self.method.step
         self._finest_schwarz = self.method.wants_finest_schwarz(degree)
         self.symmetric = symmetric  # A_const's symmetry (False with VCI): the factorization
         self.a_const: PETSc.Mat | SharedConstant
@@ -176,7 +175,7 @@ class ContactStepSolver:
         # petsc4py 3.18 has no SNES.getLineSearch, so the default line search is offered
         # through the options database while this SNES reads it, and removed after
         # (and the solver method's KSP options, read by the SNES's KSP)
-        set_from_options(snes, "", {"snes_linesearch_type": "basic", **self._step_options})
+        set_from_options(snes, "", {"snes_linesearch_type": "basic", **self.method.step})
         check_symmetric_use(snes.getKSP(), self.symmetric)
         check_factorization(snes.getKSP(), self.jacobian)
         return snes
@@ -236,10 +235,8 @@ class ContactStepSolver:
         self._signature = None if varying else active
         self.jacobian_builds += 1
         if self._finest_schwarz:  # GAMG is built for the new matrix now, then its finest level
-            ksp = snes.getKSP()
-            ksp.setOperators(jacobian, preconditioner)
-            ksp.setUp()
-            configure_finest_schwarz(ksp.getPC())
+            snes.getKSP().setOperators(jacobian, preconditioner)
+            set_up_step_ksp(snes.getKSP(), finest_schwarz=True)
 
     # -- the VI-aware line search ---------------------------------------------
     def _exact_line_search(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:

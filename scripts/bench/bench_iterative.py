@@ -29,7 +29,7 @@ from petsc4py import PETSc
 from parefg.errors import SolverError
 from parefg.parallel import set_from_options
 from parefg.run import prepare
-from parefg.timestepping.linear_solver import SOLVER_METHODS, configure_finest_schwarz
+from parefg.timestepping.linear_solver import SOLVER_METHODS, set_up_step_ksp
 
 COMM = MPI.COMM_WORLD
 PRECONDITIONERS = {
@@ -55,13 +55,11 @@ def _cg_iterations(
 ) -> tuple[int, int]:
     """CG iterations to 1e-8 on ``matrix`` for a fixed right-hand side (-1: no convergence
     in MAX_IT); levels (GAMG).  ``finest_schwarz``: GAMG's finest level as the method
-    makes it (configure_finest_schwarz after set-up)."""
+    makes it (set_up_step_ksp)."""
     ksp = PETSc.KSP().create(COMM)
     ksp.setOperators(matrix)
     set_from_options(ksp, "bench_", {**options, "ksp_rtol": "1e-8", "ksp_max_it": str(MAX_IT)})
-    if finest_schwarz:
-        ksp.setUp()
-        configure_finest_schwarz(ksp.getPC())
+    set_up_step_ksp(ksp, finest_schwarz)
     b = matrix.createVecLeft()
     start, stop = b.getOwnershipRange()
     b.setArray(np.cos(np.arange(start, stop) * 0.7) + 1.0)  # the same for every rank count
