@@ -239,15 +239,10 @@ class _Builder(BoundaryOperators):
 
     def _domain_rule(self) -> Callable[[], Quadrature]:
         """A function computing the Gauss points of this rank's cells (the same numbers at
-        every call), holding the cloud and the rank's cell ids, not the builder.  Not
-        collective."""
+        every call), holding the cloud, not the builder.  Not collective."""
         cloud, order = self.cloud, self.scene.discretization.quadrature
-        quads = np.flatnonzero(self.partition.quad_owner == self.comm.rank)
-        triangles = np.flatnonzero(self.partition.triangle_owner == self.comm.rank)
-        return lambda: cell_quadrature(
-            cloud.coords, cloud.quads, cloud.triangles, order, quad_ids=quads,
-            triangle_ids=triangles,
-        )  # fmt: skip
+        # the distributed cloud holds this rank's cells only
+        return lambda: cell_quadrature(cloud.coords, cloud.quads, cloud.triangles, order)
 
     def _collectively(self, work):
         """``work()``; an MLSError on any rank is raised on every rank (no rank left waiting)."""

@@ -17,8 +17,9 @@ linear fields) and numerically near-singular on the MLS functions that are almos
 on the small cell; the eigenproblem is solved on the range of B above a relative
 threshold, with B integrated by a finer Gauss rule than the run's so that the cell's
 strain samples outnumber the local coefficients.  Not collective: each rank estimates
-its own segments, from data every rank holds (the cloud), so the estimate of a segment
-does not depend on the partition.
+its own segments, from data every rank holds (the nodes, and the cell of every segment:
+``NodeCloud.segment_cells``), so the estimate of a segment does not depend on the
+partition.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 
 from parefg.discretization.mls import MLS, ShapeValues
 from parefg.discretization.quadrature import cell_quadrature, segment_quadrature
-from parefg.geometry.cloud import NodeCloud, directed_edges
+from parefg.geometry.cloud import BoundaryCells, NodeCloud, boundary_cells
 
 #: Gauss points per direction of the cell rule of B, above the run's (and at least this)
 ESTIMATE_QUADRATURE = 8
@@ -35,27 +36,9 @@ ESTIMATE_QUADRATURE = 8
 RANGE_THRESHOLD = 1e-10
 
 
-def adjacent_cells(cloud: NodeCloud, segment_ids: np.ndarray) -> np.ndarray:
-    """Index of the cell bounded by each segment (quads first, then triangles).
-
-    A segment (a, b) has the domain on its left, as every counter-clockwise cell edge:
-    it is the directed edge a -> b of exactly one cell.
-    """
-    n_quads = len(cloud.quads)
-    edges = directed_edges(cloud.quads, cloud.triangles)  # quads' 4 edges first, then 3 each
-    owner = np.concatenate(
-        [np.repeat(np.arange(n_quads), 4), n_quads + np.repeat(np.arange(len(cloud.triangles)), 3)]
-    )
-    n = len(cloud.coords)
-    keys = edges[:, 0] * n + edges[:, 1]
-    order = np.argsort(keys)
-    wanted = cloud.segments[segment_ids, 0] * n + cloud.segments[segment_ids, 1]
-    position = np.searchsorted(keys[order], wanted)
-    position = np.minimum(position, len(order) - 1)
-    found = keys[order][position] == wanted
-    if not np.all(found):
-        raise ValueError("a boundary segment bounds no cell of the cloud")
-    return owner[order][position]
+def segment_cells(cloud: NodeCloud) -> BoundaryCells:
+    """The cell of every segment: kept by a distributed cloud, else found in its cells."""
+    return cloud.segment_cells if cloud.segment_cells is not None else boundary_cells(cloud)
 
 
 def _strain_rows(dphi: np.ndarray) -> np.ndarray:
@@ -119,21 +102,15 @@ def trace_inverse_constants(
     segment_ids = np.asarray(segment_ids, dtype=np.int64)
     if len(segment_ids) == 0:  # a rank without segments of the part
         return np.zeros(0)
-    cells = adjacent_cells(cloud, segment_ids)
-    n_quads = len(cloud.quads)
+    cells = segment_cells(cloud)
+    _, quads, triangles = cells.of(segment_ids)
     cell_order = max(order + 3, ESTIMATE_QUADRATURE)
-    cell_rule = cell_quadrature(
-        cloud.coords,
-        cloud.quads,
-        cloud.triangles,
-        cell_order,
-        quad_ids=cells[cells < n_quads],
-        triangle_ids=cells[cells >= n_quads] - n_quads,
-    )
+    cell_rule = cell_quadrature(cloud.coords, quads, triangles, cell_order)
     # the rule lists quads first: the position of each segment's cell in it
-    by_cell = np.argsort(cells >= n_quads, kind="stable")
-    position = np.empty(len(cells), dtype=np.int64)
-    position[by_cell] = np.arange(len(cells))
+    is_triangle = cells.corners[segment_ids, 3] < 0
+    by_cell = np.argsort(is_triangle, kind="stable")
+    position = np.empty(len(segment_ids), dtype=np.int64)
+    position[by_cell] = np.arange(len(segment_ids))
     edge_rule = segment_quadrature(cloud.coords, cloud.segments, order, segment_ids=segment_ids)
     assert edge_rule.normals is not None
     cell_shape = mls.evaluate(cell_rule.points, gradients=True)
@@ -181,8 +158,9 @@ def nitsche_beta(
     """
     if len(segment_ids) == 0:
         return np.zeros(0)
-    shared = np.bincount(adjacent_cells(cloud, nitsche_segments))
-    count = shared[adjacent_cells(cloud, np.asarray(segment_ids, dtype=np.int64))]
+    cells = segment_cells(cloud).cell
+    shared, count_of = np.unique(cells[nitsche_segments], return_counts=True)
+    count = count_of[np.searchsorted(shared, cells[np.asarray(segment_ids, dtype=np.int64)])]
     constants = trace_inverse_constants(mls, cloud, segment_ids, order, lam, mu, edge_values)
     return 2.0 * count * constants
 

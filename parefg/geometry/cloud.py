@@ -1,9 +1,12 @@
 """The node cloud: EFG nodes, background cells and tagged boundary segments (SPEC 5).
 
-:class:`NodeCloud` is plain data, the same on every rank; the helpers here compute what
-follows from its arrays alone (mesh edges, local node spacing, cell areas and
-orientation).  Nothing here is collective, and nothing here knows gmsh: the clouds are
-made by :mod:`parefg.geometry.gmsh_mesh` and perturbed by :mod:`parefg.geometry.jitter`.
+:class:`NodeCloud` is plain data.  As meshed it holds every cell; once distributed
+(:func:`~parefg.geometry.distribute.partition_on_root`) a rank's copy holds only the cells
+it owns, with the cell next to every boundary segment (:class:`BoundaryCells`).  The
+helpers here compute what follows from its arrays alone (mesh edges, local node spacing,
+cell areas and orientation, the cells of the boundary segments).  Nothing here is
+collective, and nothing here knows gmsh: the clouds are made by
+:mod:`parefg.geometry.gmsh_mesh` and perturbed by :mod:`parefg.geometry.jitter`.
 """
 
 from __future__ import annotations
@@ -29,9 +32,11 @@ class NodeCloud:
     spacing : (n_nodes,) float
         Local node spacing c_I: mean length of the mesh edges incident to node I.
     quads : (n_quads, 4) int64
-        Quadrilateral cells, counter-clockwise (possibly empty).
+        Quadrilateral cells, counter-clockwise (possibly empty); once distributed, only
+        this rank's.
     triangles : (n_triangles, 3) int64
-        Triangular cells, counter-clockwise (possibly empty).
+        Triangular cells, counter-clockwise (possibly empty); once distributed, only
+        this rank's.
     segments : (n_segments, 2) int64
         Boundary segments (a, b) with the domain on their left, so the outward
         unit normal is (y_b - y_a, -(x_b - x_a)) / |x_b - x_a|.
@@ -42,6 +47,9 @@ class NodeCloud:
         are on no listed part.
     original_index : (n_nodes,) int64
         Index of each node in the cloud as gmsh built it.
+    segment_cells : BoundaryCells or None
+        The cell each segment bounds, set where the cells are distributed (every rank
+        keeps it for every segment); None while the cloud holds all its cells.
     """
 
     coords: np.ndarray
@@ -52,6 +60,7 @@ class NodeCloud:
     segment_part: np.ndarray
     part_names: list[str]
     original_index: np.ndarray
+    segment_cells: BoundaryCells | None = None
 
     @property
     def n_nodes(self) -> int:
@@ -62,6 +71,62 @@ class NodeCloud:
     def dim(self) -> int:
         """Spatial dimension d of the coordinates."""
         return self.coords.shape[1]
+
+
+@dataclass
+class BoundaryCells:
+    """The background cell each boundary segment bounds, in segment order.
+
+    What a segment's trace-inverse estimate integrates over; O(boundary), so that every
+    rank can keep it for every segment while it keeps only its own cells.
+
+    Attributes
+    ----------
+    cell : (n_segments,) int64
+        Index of the cell in the whole mesh (quads first, then triangles); -1 for a
+        segment that bounds no cell.
+    corners : (n_segments, 4) int64
+        Its corners, counter-clockwise; a triangle's fourth corner is -1.
+    """
+
+    cell: np.ndarray
+    corners: np.ndarray
+
+    def of(self, segment_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(cells, quads, triangles) of ``segment_ids``: the cell indices, then the corners
+        of the quadrilateral ones and of the triangular ones, each in segment order."""
+        if np.any(self.cell[segment_ids] < 0):
+            raise ValueError("a boundary segment bounds no cell of the cloud")
+        corners = self.corners[segment_ids]  # (n, 4)
+        is_quad = corners[:, 3] >= 0
+        return self.cell[segment_ids], corners[is_quad], corners[~is_quad, :3]
+
+
+def boundary_cells(cloud: NodeCloud) -> BoundaryCells:
+    """The cell of every segment of a cloud that holds all its cells.
+
+    A segment (a, b) has the domain on its left, as every counter-clockwise cell edge:
+    it is the directed edge a -> b of exactly one cell.  A segment that bounds no cell
+    gets cell -1 (its user, the trace-inverse estimate, refuses it).
+    """
+    n_quads, n_triangles = len(cloud.quads), len(cloud.triangles)
+    edges = directed_edges(cloud.quads, cloud.triangles)  # quads' 4 edges first, then 3 each
+    owner = np.concatenate(
+        [np.repeat(np.arange(n_quads), 4), n_quads + np.repeat(np.arange(n_triangles), 3)]
+    ).astype(np.int64)
+    n = len(cloud.coords)
+    keys = edges[:, 0] * n + edges[:, 1]
+    order = np.argsort(keys)
+    sorted_keys, sorted_owner = np.append(keys[order], -1), np.append(owner[order], -1)
+    wanted = cloud.segments[:, 0] * n + cloud.segments[:, 1]
+    position = np.searchsorted(sorted_keys[:-1], wanted)  # len(order): past the end
+    found = sorted_keys[position] == wanted
+    cell = np.where(found, sorted_owner[position], -1)
+    corners = np.full((len(cell), 4), -1, dtype=np.int64)
+    is_quad, is_triangle = found & (cell < n_quads), found & (cell >= n_quads)
+    corners[is_quad] = cloud.quads[cell[is_quad]]
+    corners[is_triangle, :3] = cloud.triangles[cell[is_triangle] - n_quads]
+    return BoundaryCells(cell=cell, corners=corners)
 
 
 def directed_edges(quads: np.ndarray, triangles: np.ndarray) -> np.ndarray:

@@ -27,6 +27,7 @@ import json
 import os
 import zipfile
 from collections import OrderedDict
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +36,10 @@ from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.shapes import SHAPES
 
 FORMAT = 1  # layout of an entry; part of the key
-ARRAYS = [f.name for f in dataclasses.fields(NodeCloud) if f.name != "part_names"]
+# the arrays of a meshed cloud (a distributed one adds segment_cells, which is not cached)
+ARRAYS = [
+    f.name for f in dataclasses.fields(NodeCloud) if f.name not in ("part_names", "segment_cells")
+]
 
 
 def _gmsh_identity() -> str:
@@ -135,7 +139,7 @@ def load(key: str | None) -> NodeCloud | None:
         with np.load(directory / f"{key}.npz", allow_pickle=False) as stored:
             if str(stored["key"]) != key:
                 return None
-            arrays = {name: np.array(stored[name]) for name in ARRAYS}
+            arrays: dict[str, Any] = {name: np.array(stored[name]) for name in ARRAYS}
             part_names = [str(name) for name in stored["part_names"]]
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError):
         return None

@@ -35,18 +35,19 @@ class Partition:
         Number of parts (ranks).
     node_ranges : (n_parts + 1,) int64
         Part r owns the renumbered nodes node_ranges[r]:node_ranges[r + 1].
-    quad_owner : (n_quads,) int64
-        Part owning each quadrilateral cell.
-    triangle_owner : (n_triangles,) int64
-        Part owning each triangular cell.
+    quad_owner : (n_quads,) int64, or None
+        Part owning each quadrilateral cell; None once distributed (each rank then holds
+        its own cells, :func:`~parefg.geometry.distribute.partition_on_root`).
+    triangle_owner : (n_triangles,) int64, or None
+        Part owning each triangular cell; None once distributed.
     segment_owner : (n_segments,) int64
         Part owning each boundary segment.
     """
 
     n_parts: int
     node_ranges: np.ndarray
-    quad_owner: np.ndarray
-    triangle_owner: np.ndarray
+    quad_owner: np.ndarray | None
+    triangle_owner: np.ndarray | None
     segment_owner: np.ndarray
 
     def node_owner(self) -> np.ndarray:

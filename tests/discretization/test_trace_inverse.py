@@ -14,7 +14,9 @@ from mpi4py import MPI
 
 from parefg.discretization.dirichlet import DIRICHLET_METHODS, local_operators
 from parefg.discretization.operators import build_discretization
-from parefg.discretization.trace_inverse import adjacent_cells, trace_inverse_constants
+from parefg.discretization.trace_inverse import trace_inverse_constants
+from parefg.geometry.cloud import boundary_cells
+from parefg.geometry.partition import partition_cloud
 from parefg.scene.loader import load_scene
 
 COMM = MPI.COMM_WORLD
@@ -57,18 +59,26 @@ def test_constant_scales_as_young_modulus_over_h(degree):
     assert 1.0 < coarse.min() / 8 < coarse.max() / 8 < 100.0
 
 
-def test_every_segment_bounds_exactly_one_cell():
-    scene = load_scene("z", ["discretization.h=0.25"])
-    cloud = build_discretization(MPI.COMM_SELF, scene).cloud
-    segments = np.arange(len(cloud.segments))
-    cells = adjacent_cells(cloud, segments)
-    for segment, cell in zip(segments, cells, strict=True):
-        corners = (
-            cloud.quads[cell]
-            if cell < len(cloud.quads)
-            else cloud.triangles[cell - len(cloud.quads)]
-        )
-        assert set(cloud.segments[segment]) <= set(corners)
+@pytest.mark.parametrize("cells", ["quad", "tri"])
+def test_every_segment_bounds_exactly_one_cell(cells):
+    """The cell kept for each segment (every rank, whatever it owns) has the segment as
+    a counter-clockwise edge, and is the one cell of the whole mesh that does."""
+    from parefg.geometry.gmsh_mesh import build_node_cloud
+
+    scene = load_scene("z", ["discretization.h=0.25", f"discretization.cells='{cells}'"])
+    cloud = build_discretization(COMM, scene).cloud
+    whole = build_node_cloud(COMM, scene.domain, 0.25, cells, min_cells=scene.discretization.degree)
+    whole = partition_cloud(whole, COMM.size)[0]
+    kept = cloud.segment_cells
+    assert kept is not None and np.all(kept.cell >= 0)
+    np.testing.assert_array_equal(kept.corners, boundary_cells(whole).corners)
+    for (a, b), corners in zip(cloud.segments, kept.corners, strict=True):
+        corners = corners[corners >= 0]
+        edges = set(zip(corners, np.roll(corners, -1), strict=True))
+        assert (a, b) in edges
+    every = [len(whole.quads), len(whole.triangles)]
+    owned = [len(cloud.quads), len(cloud.triangles)]
+    assert np.sum(COMM.allreduce(np.array(owned))) == sum(every)
 
 
 def _smallest_eigenvalue(scale: float, method: str) -> float:

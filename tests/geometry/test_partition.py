@@ -7,6 +7,7 @@ import pytest
 from mpi4py import MPI
 
 from parefg.errors import InputError
+from parefg.geometry.cloud import boundary_cells
 from parefg.geometry.gmsh_mesh import build_node_cloud
 from parefg.geometry.partition import interface_fraction, partition_cloud
 
@@ -146,11 +147,23 @@ def test_partition_on_root_equals_partition_on_every_rank(zcloud, meshed_on):
         given = mesh_on_root(comm, {"shape": "z"}, 0.05)
         assert (given is None) == (comm.rank > 0)
     got_cloud, got = partition_on_root(comm, given)
-    for name in ("coords", "spacing", "quads", "triangles", "segments", "original_index"):
+    for name in ("coords", "spacing", "segments", "segment_part", "original_index"):
         np.testing.assert_array_equal(getattr(got_cloud, name), getattr(expected_cloud, name))
-    for name in ("node_ranges", "quad_owner", "triangle_owner", "segment_owner"):
+    for name in ("node_ranges", "segment_owner"):
         np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
     assert got_cloud.part_names == expected_cloud.part_names
+    # each rank keeps its own cells, in the whole mesh's order, and every segment's cell
+    assert got.quad_owner is None and got.triangle_owner is None
+    np.testing.assert_array_equal(
+        got_cloud.quads, expected_cloud.quads[expected.quad_owner == comm.rank]
+    )
+    np.testing.assert_array_equal(
+        got_cloud.triangles, expected_cloud.triangles[expected.triangle_owner == comm.rank]
+    )
+    kept, whole = got_cloud.segment_cells, boundary_cells(expected_cloud)
+    assert kept is not None
+    np.testing.assert_array_equal(kept.cell, whole.cell)
+    np.testing.assert_array_equal(kept.corners, whole.corners)
 
 
 def test_broadcast_arrays_arrive_whole_in_chunks(monkeypatch):
