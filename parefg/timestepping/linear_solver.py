@@ -87,20 +87,29 @@ _AMG = {
 # smallest eigenvalues of the Jacobi-scaled step Jacobian are checkerboard patterns times
 # smooth functions): GAMG's counts grow 1.4x per halving of h (246, 346, 416, 423 at h =
 # 1/16 ... 1/128, CG to 1e-8 on the step Jacobian).  Local solves on overlapping patches
-# remove them: GAMG keeps its coarse levels and its finest level smooths with Chebyshev on
-# an overlapping additive Schwarz (overlap 1: the matrix graph reaches a whole support; a
-# MUMPS Cholesky per block of about SCHWARZ_BLOCK_ROWS rows).  CG per Newton step on the
-# square (h = 1/8 ... 1/128): 2.0, 2.0, 3.8, 5.8, 8.8 on 1 rank, 2.0, 5.6, 6.0, 5.4, 6.6 on
-# 2 ranks, solve time 0.6-0.9x (1 rank) and 0.17x (2 ranks) of hypre BoomerAMG with its
-# Schwarz smoothers, the former m = 3 default, which took 1.0, 6.4, 27, 16, 15 on 1 rank
-# but 44, 54, 72, 54, 52 on 2 (its Schwarz patches stop at the ranks' interface).  Smaller
-# blocks cost more (512 rows: 11.3 at 1/128, 1.7x the time); PETSc's own Cholesky spent 3x
-# as long in its symbolic phase; ASM on every level hits zero pivots on the coarse rigid
-# modes.  PCMG makes its level smoothers at set-up, so this is applied after each set-up
-# (configure_finest_schwarz), not through options.
+# remove them: GAMG keeps its coarse levels and its finest level smooths with 3 Chebyshev
+# steps on an overlapping additive Schwarz (overlap 1: the matrix graph reaches a whole
+# support; a MUMPS Cholesky per block of about SCHWARZ_BLOCK_ROWS rows).  The blocks are
+# compact in space (schwarz_blocks): PETSc's own split of one rank's rows is contiguous
+# chunks, which gmsh's node numbering (column by column) makes strips of the square, and
+# CG per Newton step then grew with 1/h on 1 rank (3.8, 5.8, 8.8 at h = 1/32, 1/64,
+# 1/128; 6.0, 5.4, 6.6 on 2 ranks, where PETSc cuts the blocks with its graph
+# partitioner).  Compact blocks take 3.8, 5.5, 6.7 with 2 Chebyshev steps and 2.6, 4.0,
+# 4.8 with 3, at 0.85x the strips' solve time at 1/128; 4 steps take 3.9 there for 1.1x
+# the time of 3.  With the strips, the solve took 0.6-0.9x (1 rank) and 0.17x (2 ranks)
+# the time of hypre BoomerAMG with its Schwarz smoothers, the former m = 3 default, which
+# took 1.0, 6.4, 27, 16, 15 CG per Newton step on 1 rank (h = 1/8 ... 1/128) but 44, 54,
+# 72, 54, 52 on 2 (its Schwarz patches stop at the ranks' interface).  Smaller blocks
+# cost more (512 rows: 1.7x the time), larger ones save nothing (4096 rows: 6.7 at 1/128
+# with 2 steps); overlap 2 saves 17 % of the iterations for 1.4x the time; a Chebyshev
+# interval narrower than GAMG's [0.1, 1.1] x the largest eigenvalue costs iterations;
+# PETSc's own Cholesky spent 3x as long in its symbolic phase; ASM on every level hits
+# zero pivots on the coarse rigid modes.  PCMG makes its level smoothers at set-up, so
+# this is applied after each set-up (configure_finest_schwarz), not through options.
 SCHWARZ_BLOCK_ROWS = 2048
 _FINEST_SCHWARZ = {
     "ksp_type": "chebyshev",
+    "ksp_max_it": "3",
     "pc_type": "asm",
     "pc_asm_type": "basic",
     "pc_asm_overlap": "1",
@@ -137,8 +146,50 @@ def configure_finest_schwarz(pc: PETSc.PC) -> None:
         smoother.setFromOptions()
         asm = smoother.getPC().getType() == PETSc.PC.Type.ASM
         if asm and not PETSc.Options().hasName(prefix + "pc_asm_blocks"):
-            smoother.getPC().setASMLocalSubdomains(max(1, round(rows / SCHWARZ_BLOCK_ROWS)))
+            n_blocks = max(1, round(rows / SCHWARZ_BLOCK_ROWS))
+            blocks = schwarz_blocks(smoother.getOperators()[1], n_blocks)
+            smoother.getPC().setASMLocalSubdomains(n_blocks, is_local=blocks)  # overlap added
         smoother.setUp()
+
+
+def schwarz_blocks(matrix: PETSc.Mat, n_blocks: int) -> list[PETSc.IS] | None:
+    """``n_blocks`` compact blocks of ``matrix``'s owned rows: a recursive coordinate
+    bisection of this rank's nodes, whose coordinates are read from the rotation of the
+    rigid-body near-null space.  Not collective.
+
+    None (PETSc then splits the rows itself) for one block, or a matrix without the
+    three rigid-body modes of 2x2 blocks.  The rotation is (-y, x) up to a shift and a
+    scale (orthonormalized against the translations): the bisection does not see either.
+    """
+    modes = matrix.getNearNullSpace()
+    if n_blocks == 1 or matrix.getBlockSize() != 2 or not modes or len(modes.getVecs()) != 3:
+        return None
+    rotation = modes.getVecs()[2].getArray()  # (-y_0, x_0, -y_1, x_1, ...), owned nodes
+    points = np.column_stack([rotation[1::2], -rotation[0::2]])  # (n_nodes, 2)
+    first = matrix.getOwnershipRange()[0]
+    blocks = []
+    for nodes in coordinate_bisection(points, n_blocks):
+        rows = first + 2 * nodes[:, None] + np.arange(2)  # (n_block_nodes, 2): x and y rows
+        blocks.append(PETSc.IS().createGeneral(rows.ravel().astype(PETSc.IntType), PETSc.COMM_SELF))
+    return blocks
+
+
+def coordinate_bisection(points: np.ndarray, n_parts: int) -> list[np.ndarray]:
+    """Split ``points`` (n, d) into ``n_parts`` compact sets of sorted indices, cutting
+    each set across its longest extent in the ratio floor(p/2) : p - floor(p/2) of its
+    ``p`` parts (as the rank partition does).  Not collective."""
+    parts, pending = [], [(np.arange(len(points)), n_parts)]
+    while pending:
+        members, p = pending.pop()
+        if p == 1:
+            parts.append(np.sort(members))
+            continue
+        along = points[members]  # (n_members, d)
+        axis = int(np.argmax(np.ptp(along, axis=0)))
+        order = members[np.argsort(along[:, axis], kind="stable")]
+        n_below = len(members) * (p // 2) // p
+        pending += [(order[n_below:], p - p // 2), (order[:n_below], p // 2)]
+    return parts
 
 
 def set_up_step_ksp(ksp: PETSc.KSP, finest_schwarz: bool) -> None:

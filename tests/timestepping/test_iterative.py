@@ -14,7 +14,11 @@ from parefg.errors import InputError
 from parefg.parallel import set_from_options
 from parefg.run import prepare
 from parefg.scene.loader import load_scene
-from parefg.timestepping.linear_solver import SOLVER_METHODS
+from parefg.timestepping.linear_solver import (
+    SOLVER_METHODS,
+    coordinate_bisection,
+    schwarz_blocks,
+)
 from parefg.timestepping.loop import time_loop
 
 COARSE = ["discretization.h=0.125", "discretization.degree=2", "time.T=0.1"]
@@ -155,17 +159,69 @@ def test_degree_3_iterations_stay_far_below_gamg():
     """m = 3, h = 1/16: at most 20 CG iterations per linear step and 50 per contact step,
     on 1 rank and on 2: the finest level's Schwarz patches overlap the ranks' interface.
 
-    Measured (linear steps / contact steps): 2, 2 / 8, 2 on 1 rank, 10, 10 / 27, 9 on 2
-    ranks.  hypre BoomerAMG with its Schwarz smoothers (the m = 3 default until
-    2026-12-07) took 15 / 35, 12 on 1 rank but 98 / 254, 84 on 2, whose patches stop at
-    the ranks' interface; the method's plain GAMG 312 / 756, 296 and 307 / 789, 319.
-    Over h = 1/8 ... 1/128 (scripts/bench/bench_iterative.py, README) CG per Newton step
-    stays at 2.0-8.8 on 1 rank and 2.0-6.6 on 2.
+    Measured (linear steps / contact steps): 2, 2 / 8, 2 on 1 rank, 7, 7 / 18, 6 on 2
+    ranks (10, 10 / 27, 9 with PETSc's own Schwarz blocks).  hypre BoomerAMG with its
+    Schwarz smoothers (the m = 3 default until 2026-12-07) took 15 / 35, 12 on 1 rank but
+    98 / 254, 84 on 2, whose patches stop at the ranks' interface; the method's plain GAMG
+    312 / 756, 296 and 307 / 789, 319.  Over h = 1/8 ... 1/128 (README) CG per Newton step
+    stays at 2.0-4.8 on 1 rank (5.0 at 1/256) and 3.8-5.0 on 2.
     """
     linear = _cg_per_step_at_degree_3(16, LINEAR_STEPS)
     assert max(linear) <= 20, linear
     contact = _cg_per_step_at_degree_3(16, [])
     assert max(contact) <= 50, contact
+
+
+def test_coordinate_bisection_makes_compact_balanced_parts():
+    """A 64 x 64 grid numbered column by column (as gmsh numbers the square's interior):
+    4 parts are its quadrants, 16 its 16 x 16 squares, 3 parts differ by at most a node."""
+    x, y = np.meshgrid(np.arange(64.0), np.arange(64.0), indexing="ij")
+    points = np.column_stack([x.ravel(), y.ravel()])  # (4096, 2), y fastest
+    for n_parts, side in ((4, 32), (16, 16)):
+        parts = coordinate_bisection(points, n_parts)
+        assert sorted(np.concatenate(parts)) == list(range(len(points)))
+        for part in parts:
+            assert np.array_equal(np.ptp(points[part], axis=0), [side - 1, side - 1])
+    sizes = [len(part) for part in coordinate_bisection(points, 3)]
+    assert max(sizes) - min(sizes) <= 1
+
+
+def _grid_matrix(n: int, modes: bool = True) -> PETSc.Mat:
+    """An identity of 2x2 blocks over the nodes of an n x n grid split by rows among the
+    ranks, with (``modes``) the rigid-body near-null space of the grid's coordinates."""
+    nodes = np.array_split(np.arange(n * n), MPI.COMM_WORLD.size)[MPI.COMM_WORLD.rank]
+    rows = (2 * len(nodes), None)
+    matrix = PETSc.Mat().createAIJ((rows, rows), bsize=2, nnz=1, comm=MPI.COMM_WORLD)
+    for row in range(*matrix.getOwnershipRange()):
+        matrix.setValue(row, row, 1.0)
+    matrix.assemble()
+    if modes:
+        coordinates = matrix.createVecRight()
+        coordinates.setBlockSize(2)
+        coordinates.setArray(np.column_stack([nodes // n, nodes % n]).ravel().astype(float))
+        matrix.setNearNullSpace(PETSc.NullSpace().createRigidBody(coordinates))
+    return matrix
+
+
+def test_schwarz_blocks_are_compact_in_space_not_in_numbering():
+    """The finest Schwarz blocks are cut from the rank's nodes by their coordinates (read
+    from the rotation mode), whatever the numbering: PETSc's own split of one rank's rows
+    into contiguous chunks made thin strips of the square (CG per Newton step at m = 3
+    grew with 1 / h).  Each block holds both rows of its nodes; together they are the
+    rank's rows once each."""
+    matrix = _grid_matrix(32)
+    blocks = schwarz_blocks(matrix, 4)
+    start, stop = matrix.getOwnershipRange()
+    rows = np.concatenate([block.getIndices() for block in blocks])
+    assert sorted(rows) == list(range(start, stop))
+    owned = (stop - start) // 2
+    for block in blocks:
+        nodes = block.getIndices()[::2] // 2
+        assert np.array_equal(block.getIndices()[1::2], block.getIndices()[::2] + 1)
+        extent = np.ptp(np.column_stack([nodes // 32, nodes % 32]), axis=0)
+        assert np.prod(extent + 1) <= 1.5 * owned / 4, extent  # a box, not a strip
+    assert schwarz_blocks(matrix, 1) is None  # one block: PETSc's own
+    assert schwarz_blocks(_grid_matrix(32, modes=False), 4) is None  # no coordinates
 
 
 def test_block_size_and_near_null_space_on_the_step_matrices():
