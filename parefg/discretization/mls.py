@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from parefg.discretization import backends
-from parefg.discretization.neighbours import NeighbourSearch
+from parefg.discretization.neighbours import NeighbourSearch, RegionSearch
 from parefg.discretization.weights import DEFAULT_WEIGHT, get_weight
 from parefg.errors import InputError
 from parefg.geometry.cloud import DIM
@@ -159,6 +159,11 @@ class MLS:
         How to compute (see :data:`BACKENDS`); by default numba for large problems when
         it is installed and knows the weight, else numpy
         (:func:`parefg.discretization.backends.choose`).
+    region : array_like, shape (2, 2), optional
+        Lower and upper corners of the box the evaluation points are expected in (a
+        rank's part): the neighbour search then holds only the nodes that reach it
+        (:class:`~parefg.discretization.neighbours.RegionSearch`; the same lists, points
+        elsewhere grow it).  By default it holds every node.
     """
 
     def __init__(
@@ -169,6 +174,7 @@ class MLS:
         weight: str = DEFAULT_WEIGHT,
         support_factor: float | None = None,
         backend: str | None = None,
+        region=None,
     ):
         if degree not in (1, 2, 3):
             raise InputError(f"discretization.degree: must be 1, 2 or 3, got {degree!r}")
@@ -183,7 +189,11 @@ class MLS:
         self.weight = get_weight(weight)
         self.support_factor = support_factor
         self.backend = self._choose_backend(backend)
-        self.search = NeighbourSearch(self.nodes, self.support_radius, self.backend)
+        self.search: NeighbourSearch | RegionSearch = (
+            NeighbourSearch(self.nodes, self.support_radius, self.backend)
+            if region is None
+            else RegionSearch(self.nodes, self.support_radius, self.backend, region)
+        )
 
     def _choose_backend(self, backend):
         """The backend to use: the requested one, or the one of :func:`backends.choose`."""

@@ -63,7 +63,7 @@ class NeighbourSearch:
     def __init__(self, nodes: np.ndarray, support_radius: np.ndarray, backend: str):
         self.nodes, self.support_radius, self.backend = nodes, support_radius, backend
         self.classes, self.reach = radius_classes(support_radius)
-        self.coordinates = (nodes[:, 0].copy(), nodes[:, 1].copy())  # x, y: numpy's gathers
+        self.coordinates = None  # x, y: the numpy search's gathers
         self.cells = None  # the compiled search's cell lists, one per class
         self.width = 32  # the compiled search's guess of the list length (grown as needed)
         # the numpy search's (members, reach, k-d tree) per class
@@ -75,6 +75,7 @@ class NeighbourSearch:
         else:
             from scipy.spatial import cKDTree  # ~50 ms to import: only for this backend
 
+            self.coordinates = (nodes[:, 0].copy(), nodes[:, 1].copy())
             for c, reach in enumerate(self.reach):
                 members = np.flatnonzero(self.classes == c)
                 self.trees.append((members, float(reach), cKDTree(nodes[members])))
@@ -184,6 +185,67 @@ class NeighbourSearch:
             index[full] = wider
             full[full] = wider[:, -1] < n
         return index
+
+
+class RegionSearch:
+    """The covering-node lists of :class:`NeighbourSearch`, searched among the nodes whose
+    supports reach a box only; the box grows to take points outside it.
+
+    A rank evaluates MLS in and near its own part of the domain.  Searching only the
+    nodes that can cover a point of that box keeps the search's arrays (cell lists or
+    k-d trees, radius classes: ~40 bytes per node) proportional to the part,
+    not to the whole cloud.  The lists are those of a search over every node: a node that
+    covers a point of the box lies within its radius of the box, and the lists keep the
+    node numbers and their (distance, node) order.  Points outside the box enlarge it to
+    their bounding box as well and rebuild the search (``rebuilds`` counts them).
+    ``members``: the searched nodes, sorted (None: every node).
+
+    Parameters
+    ----------
+    nodes, support_radius, backend :
+        As for :class:`NeighbourSearch`, of the whole cloud (read, not copied).
+    box : array_like, shape (2, 2)
+        Lower and upper corners of the box the points are expected in.
+    """
+
+    def __init__(self, nodes: np.ndarray, support_radius: np.ndarray, backend: str, box):
+        self.nodes, self.support_radius, self.backend = nodes, support_radius, backend
+        self.rebuilds = 0
+        self.box = np.asarray(box, dtype=float)  # (2, 2)
+        self.members: np.ndarray | None = None
+        self.search = self._cover()
+
+    def _cover(self) -> NeighbourSearch:
+        """The search among the nodes whose supports reach ``self.box``; sets ``members``."""
+        box = self.box
+        gap = np.maximum(box[0] - self.nodes, 0.0) + np.maximum(self.nodes - box[1], 0.0)
+        distance = np.hypot(gap[:, 0], gap[:, 1])  # (n_nodes,) to the box, 0 inside
+        members = np.flatnonzero(distance < self.support_radius * REACH_WIDENING)
+        if len(members) == 0:  # no node reaches the box: keep one, as an empty cloud can't
+            members = np.array([int(np.argmin(distance - self.support_radius))])
+        if len(members) == len(self.nodes):  # every node (one rank): no copies
+            self.members = None
+            return NeighbourSearch(self.nodes, self.support_radius, self.backend)
+        self.members = members
+        return NeighbourSearch(
+            np.ascontiguousarray(self.nodes[members]), self.support_radius[members], self.backend
+        )
+
+    def find(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`NeighbourSearch.find` over every node."""
+        if len(points):
+            lower, upper = points.min(axis=0), points.max(axis=0)
+            if np.any(lower < self.box[0]) or np.any(upper > self.box[1]):
+                self.rebuilds += 1
+                grown = [np.minimum(lower, self.box[0]), np.maximum(upper, self.box[1])]
+                self.box = np.array(grown)
+                self.search = self._cover()
+        local, mask = self.search.find(points)
+        if self.members is None:
+            return local, mask
+        neighbours = self.members[local]
+        neighbours[~mask[:, :1].any(axis=1)] = 0  # a point no node covers: node 0, as in the list
+        return neighbours, mask
 
 
 def _sorted(index, distance):

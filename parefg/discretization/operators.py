@@ -132,14 +132,25 @@ class _Builder(BoundaryOperators):
         self.node_range = (int(start), int(stop))
         self.n_nodes_local = int(stop - start)
         self.n_dofs_local = 2 * self.n_nodes_local
+        support_radius = scene.discretization.support * self.cloud.spacing
         self.mls = MLS(
             self.cloud.coords,
-            scene.discretization.support * self.cloud.spacing,
+            support_radius,
             scene.discretization.degree,
             scene.discretization.weight,
             support_factor=scene.discretization.support,
+            region=self._region(support_radius),
         )
         self.conditions: list[np.ndarray] = []  # MLS condition numbers of every point set
+
+    def _region(self, support_radius: np.ndarray) -> np.ndarray:
+        """(2, 2) the box where this rank evaluates MLS, as far as it is known in advance:
+        its own nodes' bounding box widened by their largest support radius, which takes
+        in its cells (a cell belongs to the part of its centroid) and the segments and
+        cells next to them.  Not collective."""
+        start, stop = self.node_range
+        owned, reach = self.cloud.coords[start:stop], support_radius[start:stop].max()
+        return np.array([owned.min(axis=0) - reach, owned.max(axis=0) + reach])
 
     def build(self) -> Discretization:
         comm, cloud, n = self.comm, self.cloud, self.n_nodes

@@ -10,7 +10,12 @@ import numpy as np
 import pytest
 
 from parefg.discretization.mls import BACKENDS
-from parefg.discretization.neighbours import CLASS_RATIO, NeighbourSearch, radius_classes
+from parefg.discretization.neighbours import (
+    CLASS_RATIO,
+    NeighbourSearch,
+    RegionSearch,
+    radius_classes,
+)
 
 
 def brute_force(points, nodes, radius):
@@ -102,6 +107,22 @@ def test_lists_are_the_definition_on_two_interleaved_radius_classes():
         assert np.array_equal(found[0], expected[0]) and np.array_equal(found[1], expected[1])
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_region_search_gives_the_lists_of_the_whole_cloud(backend):
+    """A search among the nodes that reach a box (a rank's part) lists, for points in the
+    box, exactly the nodes of the definition over the whole cloud, numbered as in it; it
+    holds fewer nodes; points outside the box grow it (rebuilt once) and get theirs."""
+    nodes, radius, points = graded_cloud()
+    search = RegionSearch(nodes, radius, backend, [[0.5, 0.0], [0.75, 0.5]])
+    assert len(search.members) < 0.6 * len(nodes)
+    inside = points[np.all((points >= [0.5, 0.0]) & (points <= [0.75, 0.5]), axis=1)]
+    for chunk in (inside, points):  # then every point: the box grows to the whole square
+        expected = brute_force(chunk, nodes, radius)
+        found = search.find(chunk)
+        assert np.array_equal(found[1], expected[1]) and np.array_equal(found[0], expected[0])
+    assert search.rebuilds == 1 and search.members is None  # every node
+
+
 def test_radius_classes_span_less_than_the_ratio_and_reach_their_radii():
     _, radius, _ = graded_cloud()
     classes, reach = radius_classes(radius)
@@ -113,3 +134,27 @@ def test_radius_classes_span_less_than_the_ratio_and_reach_their_radii():
         assert np.all(members < reach[c]) and reach[c] < members.max() * (1 + 1e-12)
     uniform = radius_classes(np.linspace(1.0, 1.9, 50))
     assert np.array_equal(uniform[0], np.zeros(50)) and len(uniform[1]) == 1
+
+
+def test_a_rank_searches_only_the_nodes_near_its_part():
+    """In a run, each rank's MLS searches the nodes that reach its own part (on 2 ranks,
+    at h = 1/32, at most 75 % of the cloud's; on 1, all), and every evaluation of the run
+    (the build, steps, output fields, error norms) falls in the box it started with."""
+    from mpi4py import MPI
+
+    from parefg.io.observers import output_fields
+    from parefg.run import prepare
+
+    comm = MPI.COMM_WORLD
+    sim = prepare(comm, "z", ["discretization.h=0.03125", "time.T=0.1"])
+    state = sim.start()
+    for step in (1, 2):
+        state = sim.step(state, step)
+    output_fields(sim, state)
+    sim.errors(state.u, 2 * sim.scheme.dt)
+    search = sim.disc.domain.gradients.mls.search
+    assert isinstance(search, RegionSearch) and search.rebuilds == 0
+    if comm.size == 1:
+        assert search.members is None  # every node
+    else:
+        assert len(search.members) <= 0.75 * sim.disc.n_nodes, len(search.members)
