@@ -126,6 +126,14 @@ def interface_fraction(cloud: NodeCloud, partition: Partition) -> float:
     return float(np.mean(owner[edges[:, 0]] != owner[edges[:, 1]]))
 
 
+def bisection_parts(points: np.ndarray, n_parts: int) -> np.ndarray:
+    """(n_points,) int64 part of each point under the recursive coordinate bisection of
+    :func:`partition_cloud` (the same cuts, ties and part sizes).  Not collective."""
+    part = np.empty(len(points), dtype=np.int64)
+    _bisect(points, np.arange(len(points)), 0, n_parts, part)
+    return part
+
+
 def _bisect(coords, members, first_part: int, n_parts: int, node_part) -> _Cut | int:
     """Cut tree of the nodes ``members`` into parts first_part .. first_part + n_parts - 1.
 

@@ -21,6 +21,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from parefg.errors import InputError, SolverError
+from parefg.geometry.partition import bisection_parts
 from parefg.parallel import default_options, set_from_options
 from parefg.petsc_options import EXACT_FACTORIZATIONS
 
@@ -153,9 +154,10 @@ def configure_finest_schwarz(pc: PETSc.PC) -> None:
 
 
 def schwarz_blocks(matrix: PETSc.Mat, n_blocks: int) -> list[PETSc.IS] | None:
-    """``n_blocks`` compact blocks of ``matrix``'s owned rows: a recursive coordinate
-    bisection of this rank's nodes, whose coordinates are read from the rotation of the
-    rigid-body near-null space.  Not collective.
+    """``n_blocks`` compact blocks of ``matrix``'s owned rows: the recursive coordinate
+    bisection of the rank partition (:func:`~parefg.geometry.partition.bisection_parts`)
+    of this rank's nodes, whose coordinates are read from the rotation of the rigid-body
+    near-null space.  Not collective.
 
     None (PETSc then splits the rows itself) for one block, or a matrix without the
     three rigid-body modes of 2x2 blocks.  The rotation is (-y, x) up to a shift and a
@@ -167,29 +169,13 @@ def schwarz_blocks(matrix: PETSc.Mat, n_blocks: int) -> list[PETSc.IS] | None:
     rotation = modes.getVecs()[2].getArray()  # (-y_0, x_0, -y_1, x_1, ...), owned nodes
     points = np.column_stack([rotation[1::2], -rotation[0::2]])  # (n_nodes, 2)
     first = matrix.getOwnershipRange()[0]
+    part = bisection_parts(points, n_blocks)  # the rank partition's bisection, on its nodes
     blocks = []
-    for nodes in coordinate_bisection(points, n_blocks):
+    for block in range(n_blocks):
+        nodes = np.flatnonzero(part == block)
         rows = first + 2 * nodes[:, None] + np.arange(2)  # (n_block_nodes, 2): x and y rows
         blocks.append(PETSc.IS().createGeneral(rows.ravel().astype(PETSc.IntType), PETSc.COMM_SELF))
     return blocks
-
-
-def coordinate_bisection(points: np.ndarray, n_parts: int) -> list[np.ndarray]:
-    """Split ``points`` (n, d) into ``n_parts`` compact sets of sorted indices, cutting
-    each set across its longest extent in the ratio floor(p/2) : p - floor(p/2) of its
-    ``p`` parts (as the rank partition does).  Not collective."""
-    parts, pending = [], [(np.arange(len(points)), n_parts)]
-    while pending:
-        members, p = pending.pop()
-        if p == 1:
-            parts.append(np.sort(members))
-            continue
-        along = points[members]  # (n_members, d)
-        axis = int(np.argmax(np.ptp(along, axis=0)))
-        order = members[np.argsort(along[:, axis], kind="stable")]
-        n_below = len(members) * (p // 2) // p
-        pending += [(order[n_below:], p - p // 2), (order[:n_below], p // 2)]
-    return parts
 
 
 def set_up_step_ksp(ksp: PETSc.KSP, finest_schwarz: bool) -> None:

@@ -11,14 +11,11 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.errors import InputError
+from parefg.geometry.partition import bisection_parts
 from parefg.parallel import set_from_options
 from parefg.run import prepare
 from parefg.scene.loader import load_scene
-from parefg.timestepping.linear_solver import (
-    SOLVER_METHODS,
-    coordinate_bisection,
-    schwarz_blocks,
-)
+from parefg.timestepping.linear_solver import SOLVER_METHODS, schwarz_blocks
 from parefg.timestepping.loop import time_loop
 
 COARSE = ["discretization.h=0.125", "discretization.degree=2", "time.T=0.1"]
@@ -172,18 +169,19 @@ def test_degree_3_iterations_stay_far_below_gamg():
     assert max(contact) <= 50, contact
 
 
-def test_coordinate_bisection_makes_compact_balanced_parts():
+def test_bisection_parts_are_compact_and_balanced():
     """A 64 x 64 grid numbered column by column (as gmsh numbers the square's interior):
-    4 parts are its quadrants, 16 its 16 x 16 squares, 3 parts differ by at most a node."""
+    4 parts are its quadrants, 16 its 16 x 16 squares, 3 parts differ by at most a node
+    (the bisection the finest Schwarz blocks take from the rank partition)."""
     x, y = np.meshgrid(np.arange(64.0), np.arange(64.0), indexing="ij")
     points = np.column_stack([x.ravel(), y.ravel()])  # (4096, 2), y fastest
     for n_parts, side in ((4, 32), (16, 16)):
-        parts = coordinate_bisection(points, n_parts)
-        assert sorted(np.concatenate(parts)) == list(range(len(points)))
-        for part in parts:
-            assert np.array_equal(np.ptp(points[part], axis=0), [side - 1, side - 1])
-    sizes = [len(part) for part in coordinate_bisection(points, 3)]
-    assert max(sizes) - min(sizes) <= 1
+        part = bisection_parts(points, n_parts)
+        assert sorted(np.unique(part)) == list(range(n_parts))
+        for p in range(n_parts):
+            assert np.array_equal(np.ptp(points[part == p], axis=0), [side - 1, side - 1])
+    sizes = np.bincount(bisection_parts(points, 3))
+    assert sizes.max() - sizes.min() <= 1
 
 
 def _grid_matrix(n: int, modes: bool = True) -> PETSc.Mat:
