@@ -30,6 +30,19 @@ CLASS_RATIO = 2.0
 REACH_WIDENING = 1.0 + 16.0 * np.finfo(float).eps
 
 
+# a node within (1 + 1e-9) of its support radius of a box may reach points of the box
+BOX_WIDENING = 1.0 + 1e-9
+
+
+def nodes_reaching_box(nodes: np.ndarray, support_radius: np.ndarray, lower, upper) -> np.ndarray:
+    """Sorted indices of the nodes whose supports reach the box [lower, upper] (each (2,)):
+    a superset of the nodes that cover any point of it (the distance to the box widened by
+    BOX_WIDENING, so that rounding never drops one).  One pass over the nodes; not
+    collective."""
+    gap = nodes - np.clip(nodes, lower, upper)  # (n_nodes, 2), zero inside the box
+    return np.flatnonzero(np.hypot(gap[:, 0], gap[:, 1]) <= support_radius * BOX_WIDENING)
+
+
 def radius_classes(support_radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Radius classes of the nodes: d_I in [d_min r^c, d_min r^(c+1)), r = CLASS_RATIO.
 
@@ -217,12 +230,9 @@ class RegionSearch:
 
     def _cover(self) -> NeighbourSearch:
         """The search among the nodes whose supports reach ``self.box``; sets ``members``."""
-        box = self.box
-        gap = np.maximum(box[0] - self.nodes, 0.0) + np.maximum(self.nodes - box[1], 0.0)
-        distance = np.hypot(gap[:, 0], gap[:, 1])  # (n_nodes,) to the box, 0 inside
-        members = np.flatnonzero(distance < self.support_radius * REACH_WIDENING)
+        members = nodes_reaching_box(self.nodes, self.support_radius, *self.box)
         if len(members) == 0:  # no node reaches the box: keep one, as an empty cloud can't
-            members = np.array([int(np.argmin(distance - self.support_radius))])
+            members = np.array([0])
         if len(members) == len(self.nodes):  # every node (one rank): no copies
             self.members = None
             return NeighbourSearch(self.nodes, self.support_radius, self.backend)

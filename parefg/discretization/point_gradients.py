@@ -20,11 +20,10 @@ from petsc4py import PETSc
 
 from parefg.discretization.assembly import gather, sorted_slots
 from parefg.discretization.mls import MLS, ShapeValues
+from parefg.discretization.neighbours import nodes_reaching_box
 
 # Points per MLS block: bounds the transient shape arrays (a few MB at m = 2).
 BLOCK_POINTS = 4096
-# a node within (1 + 1e-9) of its support radius of the points' bounding box may reach them
-BOX_WIDENING = 1.0 + 1e-9
 
 
 class PointGradients:
@@ -92,14 +91,13 @@ class PointGradients:
             blocks = [np.zeros(0, dtype=np.int64), *(n.ravel() for n, _ in self.kept)]
             self._reached = np.unique(np.concatenate(blocks))
             return self._reached
-        points, nodes = self._points(), self.mls.nodes
+        points = self._points()
         if len(points) == 0:
             self._reached = np.zeros(0, dtype=np.int64)
             return self._reached
-        # distance from each node to the box; widened so that rounding never drops a node
-        gap = nodes - np.clip(nodes, points.min(axis=0), points.max(axis=0))
-        reaches = np.hypot(gap[:, 0], gap[:, 1]) <= self.mls.support_radius * BOX_WIDENING
-        self._reached = np.flatnonzero(reaches)
+        self._reached = nodes_reaching_box(
+            self.mls.nodes, self.mls.support_radius, points.min(axis=0), points.max(axis=0)
+        )
         return self._reached
 
     def evaluate(self, comm, u: PETSc.Vec) -> np.ndarray:
