@@ -102,12 +102,10 @@ def trace_inverse_constants(
     segment_ids = np.asarray(segment_ids, dtype=np.int64)
     if len(segment_ids) == 0:  # a rank without segments of the part
         return np.zeros(0)
-    cells = segment_cells(cloud)
-    _, quads, triangles = cells.of(segment_ids)
+    quads, triangles, is_triangle = segment_cells(cloud).of(segment_ids)
     cell_order = max(order + 3, ESTIMATE_QUADRATURE)
     cell_rule = cell_quadrature(cloud.coords, quads, triangles, cell_order)
     # the rule lists quads first: the position of each segment's cell in it
-    is_triangle = cells.corners[segment_ids, 3] < 0
     by_cell = np.argsort(is_triangle, kind="stable")
     position = np.empty(len(segment_ids), dtype=np.int64)
     position[by_cell] = np.arange(len(segment_ids))

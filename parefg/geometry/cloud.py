@@ -93,13 +93,14 @@ class BoundaryCells:
     corners: np.ndarray
 
     def of(self, segment_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(cells, quads, triangles) of ``segment_ids``: the cell indices, then the corners
-        of the quadrilateral ones and of the triangular ones, each in segment order."""
+        """(quads, triangles, is_triangle) of ``segment_ids``: the corners of their
+        quadrilateral cells and of their triangular ones, each in segment order, and
+        which segments' cells are triangles."""
         if np.any(self.cell[segment_ids] < 0):
             raise ValueError("a boundary segment bounds no cell of the cloud")
         corners = self.corners[segment_ids]  # (n, 4)
-        is_quad = corners[:, 3] >= 0
-        return self.cell[segment_ids], corners[is_quad], corners[~is_quad, :3]
+        is_triangle = corners[:, 3] < 0
+        return corners[~is_triangle], corners[is_triangle, :3], is_triangle
 
 
 def boundary_cells(cloud: NodeCloud) -> BoundaryCells:
