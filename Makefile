@@ -6,6 +6,8 @@ PY        := $(VENV)/bin/python
 STAMP     := $(VENV)/.parefg-installed
 # Redone when a kernel source changes: the numba kernels compile into their cache once here.
 KERNELS   := $(VENV)/.parefg-kernels
+# Redone when the package or a built-in scene changes (their entries' keys hash the source).
+PREBUILT  := $(VENV)/.parefg-prebuilt
 DEB_PKGS  := python3-petsc4py python3-mpi4py python3-h5py-mpi python3-gmsh \
              python3-numpy python3-scipy python3-sympy python3-matplotlib \
              python3-numba python3-venv python3-pip openmpi-bin
@@ -21,7 +23,7 @@ WORKERS   := $(shell n=$$(nproc); echo $$(( n < 4 ? n : 4 )))
 
 .PHONY: setup demo test lint clean bench-getfem
 
-setup: $(STAMP) $(KERNELS)
+setup: $(STAMP) $(KERNELS) $(PREBUILT)
 	@# Byte-compile the package: with PYTHONDONTWRITEBYTECODE set (as on some CI machines)
 	@# Python would compile its 80 modules from source in every process (~0.09 s a run).
 	@$(PY) -m compileall -q parefg
@@ -30,6 +32,13 @@ setup: $(STAMP) $(KERNELS)
 # spend ~20 s compiling.
 $(KERNELS): $(STAMP) $(wildcard parefg/discretization/*.py) scripts/setup/warm_kernels.py
 	$(PY) scripts/setup/warm_kernels.py
+	@touch $@
+
+# ~1 s: the built-in scenes' derived data and meshes, so that their runs import neither
+# sympy nor gmsh (parefg.user_cache.prebuilt_dir).
+$(PREBUILT): $(STAMP) $(shell find parefg -name '*.py' -o -name '*.toml') \
+		scripts/setup/prebuild_scenes.py
+	$(PY) scripts/setup/prebuild_scenes.py
 	@touch $@
 
 $(STAMP): pyproject.toml scripts/setup/setup.sh

@@ -9,10 +9,18 @@ hash of everything they depend on (:func:`source_digest` included), so a changed
 changed code misses and nothing is invalidated by hand.  Writes are atomic: readers
 (other ranks, other runs) see a whole entry or none.  Every failure to read is a miss and
 every failure to write is skipped, silently.  Not collective.
+
+Next to it, read only, the entries of the built-in scenes at their defaults that
+``make setup`` prebuilt into the installation (:func:`prebuilt_dir`, written by
+scripts/setup/prebuild_scenes.py, as the numba kernels are compiled there): the default
+run imports neither sympy nor gmsh without the user opting in to a cache, and writes
+nothing outside its output directory.  The same keys apply, so an edit of the package
+misses until setup prebuilds again.
 """
 
 import hashlib
 import os
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -35,6 +43,31 @@ def cache_dir(kind: str) -> Path | None:
         xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
         root = os.path.join(xdg, "parefg")
     return Path(root) / kind
+
+
+def prebuilt_dir(kind: str) -> Path | None:
+    """The read-only directory of one kind of prebuilt entry, or None when there is none.
+
+    ``$PAREFG_PREBUILT_DIR`` (empty: none), by default ``share/parefg/prebuilt`` of the
+    Python installation (the virtual environment of `make setup`); ``PAREFG_CACHE=0``
+    turns it off with every cache.
+    """
+    root = os.environ.get("PAREFG_PREBUILT_DIR", str(default_prebuilt_root()))
+    if disabled() or not root:
+        return None
+    path = Path(root) / kind
+    return path if path.is_dir() else None
+
+
+def default_prebuilt_root() -> Path:
+    """Where ``make setup`` prebuilds: inside the environment that runs parefg."""
+    return Path(sys.prefix) / "share" / "parefg" / "prebuilt"
+
+
+def read_dirs(kind: str) -> list[Path]:
+    """The directories an entry of one kind is looked up in: the user cache first (when
+    on), then the prebuilt entries (when present)."""
+    return [path for path in (cache_dir(kind), prebuilt_dir(kind)) if path is not None]
 
 
 def source_digest() -> str:

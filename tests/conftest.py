@@ -24,6 +24,10 @@ from mpi4py import MPI
 pytest_plugins = ["rank_sync"]  # a test failing on one rank only aborts the MPI run
 
 REPO = Path(__file__).resolve().parents[1]
+# The tests count derivations and meshings, so they run without the entries `make setup`
+# prebuilt for the built-in scenes (tests/scene/test_prebuilt.py tests those); their child
+# processes inherit this.
+os.environ["PAREFG_PREBUILT_DIR"] = ""
 PAREFG = str(Path(sys.executable).with_name("parefg"))
 
 

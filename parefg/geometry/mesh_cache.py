@@ -10,8 +10,8 @@ outline the scene alone defines are cached; a .geo domain (whose file and budget
 reads) is meshed every time.
 
 Entries are .npz files read without pickle (arrays only); anything unreadable is a
-miss.  Directory: ``meshes/`` of :func:`parefg.user_cache.cache_dir`.  Not collective
-(rank 0 meshes).
+miss.  Directory: ``meshes/`` of :func:`parefg.user_cache.cache_dir` (written and read),
+then of :func:`parefg.user_cache.prebuilt_dir` (read only).  Not collective (rank 0 meshes).
 
 Within a process, the last ``MEMORY_ENTRIES`` small clouds (``MEMORY_NODES`` nodes at
 most) are also kept in memory, keyed by the same inputs (the code is the process's):
@@ -67,9 +67,9 @@ def _mesh_inputs(domain: dict, h: float, cells: str, min_cells: int) -> dict:
 
 
 def mesh_key(domain: dict, h: float, cells: str, min_cells: int = 1) -> str | None:
-    """The cache key of one mesh, or None when it is not cached (a .geo domain, or the
-    cache is off: the key reads the package source, which a run need not pay for)."""
-    if user_cache.cache_dir("meshes") is None or not _outlined(domain):
+    """The cache key of one mesh, or None when it is not cached (a .geo domain, or no
+    cache to read: the key reads the package source, which a run need not pay for)."""
+    if not _outlined(domain) or not user_cache.read_dirs("meshes"):
         return None
     identity = {
         "format": FORMAT,
@@ -131,12 +131,21 @@ def forget() -> None:
 
 
 def load(key: str | None) -> NodeCloud | None:
-    """The cloud stored under ``key``, or None on a miss (or when key is None)."""
-    directory = user_cache.cache_dir("meshes")
-    if key is None or directory is None:
+    """The cloud stored under ``key`` in the user cache or the prebuilt entries, or None on a
+    miss (or when key is None)."""
+    if key is None:
         return None
+    for directory in user_cache.read_dirs("meshes"):
+        cloud = _read(directory / f"{key}.npz", key)
+        if cloud is not None:
+            return cloud
+    return None
+
+
+def _read(path, key: str) -> NodeCloud | None:
+    """The cloud of one entry file, or None when it is missing, corrupt or another key's."""
     try:
-        with np.load(directory / f"{key}.npz", allow_pickle=False) as stored:
+        with np.load(path, allow_pickle=False) as stored:
             if str(stored["key"]) != key:
                 return None
             arrays: dict[str, Any] = {name: np.array(stored[name]) for name in ARRAYS}

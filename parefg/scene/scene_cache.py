@@ -3,10 +3,11 @@
 Deriving a scene's data (parsing its expressions, differentiating its exact solution,
 checking signs) needs sympy: ~0.5 s of imports for milliseconds of work.  The result is
 a set of expression texts (:class:`~parefg.scene.numeric.CompiledField`) and a few flags,
-stored as JSON under a key that hashes everything it depends on: the effective scene
-(``params``, which holds every expression and default), the source of the package, and
-the versions of parefg and sympy.  A changed scene or code misses; nothing is ever
-invalidated by hand.
+stored as JSON under a key that hashes everything it depends on: the sections of the
+effective scene the derivation reads (:data:`DERIVED_FROM`, which hold every expression
+and default; not the discretization, solver or output, so a sweep over h or dt hits),
+the source of the package, and the versions of parefg and sympy.  A changed scene or
+code misses; nothing is ever invalidated by hand.
 
 Safety: the cache is read as data only.  Its texts go through the whitelist evaluator of
 :mod:`parefg.scene.numeric` (numbers, x, y, t, nx, ny, + - * / ** and numpy functions),
@@ -16,8 +17,9 @@ directory, then :func:`os.replace`: readers (other ranks, other runs) see a whol
 none.  An unwritable directory is silently skipped.
 
 Directory: ``scenes/`` of :func:`parefg.user_cache.cache_dir` (opt-in: ``$PAREFG_CACHE_DIR``,
-or ``PAREFG_CACHE=1`` for ``~/.cache/parefg``); ``PAREFG_SCENE_CACHE=0`` turns this cache
-off, ``PAREFG_CACHE=0`` every cache.
+or ``PAREFG_CACHE=1`` for ``~/.cache/parefg``), then, read only, of
+:func:`parefg.user_cache.prebuilt_dir` (the built-in scenes, prebuilt by `make setup`);
+``PAREFG_SCENE_CACHE=0`` turns this cache off, ``PAREFG_CACHE=0`` every cache.
 Not collective.
 """
 
@@ -37,19 +39,31 @@ FORMAT = 1  # layout of an entry; part of the key
 
 #: Scene fields holding a CompiledField (or None) in an entry
 FIELDS = ("body_force", "initial_u", "initial_v", "initial_grad", "initial_div_stress")
+#: The scene sections the derivation (:func:`parefg.scene.loader._derive`) reads: the
+#: expressions and what checks them (the domain's parts, the material, the time span of
+#: the sign checks and whether the scheme is dynamic).
+DERIVED_FROM = ("exact", "boundary", "loads", "initial", "material", "domain")
+DERIVED_FROM_TIME = ("T", "scheme")
+
+
+def _switched_off() -> bool:
+    return os.environ.get("PAREFG_SCENE_CACHE", "1") == "0"
 
 
 def cache_dir() -> Path | None:
-    """The directory of scene entries, or None when the cache is off."""
-    if os.environ.get("PAREFG_SCENE_CACHE", "1") == "0":
-        return None
-    return user_cache.cache_dir("scenes")
+    """The directory scene entries are written to, or None when the cache is off."""
+    return None if _switched_off() else user_cache.cache_dir("scenes")
+
+
+def read_dirs() -> list[Path]:
+    """The directories scene entries are read from: the user cache, then the prebuilt."""
+    return [] if _switched_off() else user_cache.read_dirs("scenes")
 
 
 def scene_key(params: dict, dynamic: bool) -> str | None:
-    """The cache key of a scene's compiled data; None when the cache is off (the key reads
-    the package source and the installed sympy's version: ~45 ms a run need not pay)."""
-    if cache_dir() is None:
+    """The cache key of a scene's compiled data; None when there is no cache to read (the key
+    reads the package source: a run without a cache need not pay for it)."""
+    if not read_dirs():
         return None
     identity = {
         "format": FORMAT,
@@ -57,7 +71,8 @@ def scene_key(params: dict, dynamic: bool) -> str | None:
         "sympy": sympy_version(),
         "source": user_cache.source_digest(),
         "dynamic": dynamic,
-        "params": params,
+        "params": {section: params.get(section) for section in DERIVED_FROM},
+        "time": {item: params["time"].get(item) for item in DERIVED_FROM_TIME},
     }
     text = json.dumps(identity, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
@@ -82,11 +97,19 @@ def load(key: str | None) -> dict | None:
 
     Every failure to read or rebuild the entry is a miss.
     """
-    directory = cache_dir()
-    if key is None or directory is None:
+    if key is None:
         return None
+    for directory in read_dirs():
+        data = _read(directory / f"{key}.json", key)
+        if data is not None:
+            return data
+    return None
+
+
+def _read(path: Path, key: str) -> dict | None:
+    """The compiled data of one entry file, or None when it cannot be used."""
     try:
-        stored = json.loads((directory / f"{key}.json").read_text())
+        stored = json.loads(path.read_text())
         if stored.get("key") != key:
             return None
         return _rebuild(stored)

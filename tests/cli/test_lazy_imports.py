@@ -12,7 +12,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import QUICK, mpi_env
+from conftest import QUICK, REPO, mpi_env
 
 HEAVY = ("sympy", "matplotlib", "h5py", "numba", "gmsh")
 PROBE = """
@@ -66,3 +66,44 @@ def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path):
         results.append({k: v for k, v in summary.items() if k not in ("timings", "peak_rss_mb")})
     assert imported == ["gmsh sympy", ""]
     assert results[0] == results[1]
+
+
+@pytest.mark.serial_only
+def test_a_run_of_a_prebuilt_scene_imports_neither_sympy_nor_gmsh_and_writes_nowhere(tmp_path):
+    """`make setup` prebuilds the built-in scenes (scripts/setup/prebuild_scenes.py): a run
+    of one at its defaults (dt is not part of what is prebuilt) then reads the prebuilt data
+    and mesh, with no user cache: neither sympy nor gmsh imported, the results of a run
+    that derives and meshes (PAREFG_CACHE=0), and nothing written but the output."""
+    prebuilt, home = tmp_path / "prebuilt", tmp_path / "home"
+    home.mkdir()
+    env = {**mpi_env(), "HOME": str(home), "PAREFG_PREBUILT_DIR": str(prebuilt)}
+    for name in ("PAREFG_CACHE", "PAREFG_CACHE_DIR", "PAREFG_SCENE_CACHE", "XDG_CACHE_HOME"):
+        env.pop(name, None)
+    script = REPO / "scripts" / "setup" / "prebuild_scenes.py"
+    built = subprocess.run(
+        [sys.executable, str(script), "--to", str(prebuilt)],
+        capture_output=True, text=True, env=env, timeout=300,
+    )  # fmt: skip
+    assert built.returncode == 0, built.stderr
+    assert {path.parent.name for path in prebuilt.rglob("*.*")} == {"scenes", "meshes"}
+    before = sorted((str(path), path.stat().st_mtime_ns) for path in prebuilt.rglob("*"))
+    imported, results = [], []
+    for run, extra in (("prebuilt", {}), ("derived", {"PAREFG_CACHE": "0"})):
+        out = tmp_path / f"run-{run}"
+        argv = ["run", "square", "--quiet", "--out", str(out), "--set", "time.dt=0.25"]
+        probe = PROBE.format(argv=argv, heavy=("gmsh", "sympy"))
+        result = subprocess.run(
+            [sys.executable, "-c", probe],
+            capture_output=True, text=True, env={**env, **extra}, timeout=300, cwd=tmp_path,
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        imported.append(result.stdout.splitlines()[-1])
+        summary = json.loads((out / "summary.json").read_text())
+        results.append({k: v for k, v in summary.items() if k not in ("timings", "peak_rss_mb")})
+    assert imported == ["", "gmsh sympy"]
+    assert results[0] == results[1]
+    assert sorted((str(path), path.stat().st_mtime_ns) for path in prebuilt.rglob("*")) == before
+    assert list(home.iterdir()) == []
+    assert sorted(path.name for path in tmp_path.iterdir()) == [
+        "home", "prebuilt", "run-derived", "run-prebuilt"
+    ]  # fmt: skip

@@ -70,6 +70,29 @@ def test_a_changed_scene_misses(cache, monkeypatch):
         loader.load_scene("square", ["material.nu=0.25"])
 
 
+@pytest.mark.parametrize(
+    "changed", [["material.E=2.0"], ["time.T=0.5"], ["boundary.bottom.gap=0.01"]]
+)
+def test_what_the_derivation_reads_misses(cache, monkeypatch, changed):
+    loader.load_scene("square")
+    monkeypatch.setattr(loader, "_derive", no_derivation)
+    with pytest.raises(AssertionError, match="derived although cached"):
+        loader.load_scene("square", changed)
+
+
+@pytest.mark.parametrize(
+    "changed",
+    [["discretization.h=0.125", "discretization.degree=1"], ["time.dt=0.01"], ["output.every=0"]],
+)
+def test_what_the_derivation_does_not_read_hits(cache, monkeypatch, changed):
+    """A sweep over h, m or dt derives once: the key holds only what _derive reads."""
+    reference = values(loader.load_scene("square"))
+    monkeypatch.setattr(loader, "_derive", no_derivation)
+    again = loader.load_scene("square", changed)
+    for a, b in zip(reference, values(again), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def entry_file(cache):
     (path,) = cache.glob("*.json")
     return path
