@@ -69,6 +69,11 @@ def _blocks(cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.unique(np.concatenate([[0], inner, [n_points]])), group_start
 
 
+def _groups_of(group_start: np.ndarray, first: int, last: int) -> np.ndarray:
+    """The group starts of the block of points [first, last), relative to its first point."""
+    return group_start[(group_start >= first) & (group_start <= last)] - first
+
+
 def _pairs(neighbours, mask, group_start, n_nodes):
     """The groups' nodes and coupled pairs (see Coupling.of) of one block."""
     kernels = kernels_for(n_nodes)
@@ -121,8 +126,11 @@ class BlockPasses:
         self.mls, self.quadrature, self.timer = mls, quadrature, timer
         self.n_nodes = len(mls.nodes)
         self.kernels = kernels_for(self.n_nodes)
-        bounds, self.group_start = _blocks(quadrature.cell)
+        bounds, group_start = _blocks(quadrature.cell)
         self.blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+        # one array per block, passed to both passes: the numpy kernels keep what they derive
+        # from a block's arrays while they are passed again (assembly_numpy._slots)
+        self.block_groups = [_groups_of(group_start, first, last) for first, last in self.blocks]
         self.searched: list[tuple | None] = [None] * len(self.blocks)  # of a one-block domain
         self.padded_slots = 0  # points x padded neighbours over all blocks
         self.shapes: list[ShapeValues | None] = [None] * len(self.blocks)  # of a one-block domain
@@ -143,16 +151,11 @@ class BlockPasses:
         with self.timer("neighbours"):
             neighbours, mask = self.mls.find_neighbours(self.quadrature.points[first:last])
         with self.timer("assembly"):
-            pairs = _pairs(neighbours, mask, self.groups_of(first, last), self.n_nodes)
+            pairs = _pairs(neighbours, mask, self.block_groups[index], self.n_nodes)
         found = (neighbours, mask, *pairs)
         if len(self.blocks) == 1:
             self.searched[index] = found
         return found
-
-    def groups_of(self, first: int, last: int) -> np.ndarray:
-        """The block's group starts, relative to its first point."""
-        group_start = self.group_start
-        return group_start[(group_start >= first) & (group_start <= last)] - first
 
     def pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pass 1: the scalar pattern (indptr, indices) and the row lengths of S."""
@@ -226,7 +229,7 @@ class BlockPasses:
             shape = self.block_shape(index, searched)
             low, high = min(low, shape.condition.min()), max(high, shape.condition.max())
             with timer("assembly"):
-                groups = self.groups_of(first, last)
+                groups = self.block_groups[index]
                 position = self.kernels.pair_positions(indptr, indices, pair_row, pair_col)
                 weights = quadrature.weights[first:last]
                 local_of = np.zeros(n_nodes, dtype=np.int64)

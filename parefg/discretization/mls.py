@@ -248,7 +248,12 @@ class MLS:
 
     def _weights(self, points, neighbours, mask):
         """Weights w_I(x), their gradients dw_I/dx, offsets x_I - x and the basis scale R."""
-        offset = self.nodes[neighbours] - points[:, None, :]  # (n, n_max, 2): x_I - x
+        # x_I - x, (n, n_max, 2), one coordinate at a time: two gathers from 1-D arrays
+        # cost a fifth of one gather of (x, y) rows
+        offset = np.empty((*neighbours.shape, DIM))
+        for axis in range(DIM):
+            coordinate = np.take(self.nodes[:, axis], neighbours)
+            np.subtract(coordinate, points[:, axis, None], out=offset[..., axis])
         distance = np.sqrt(np.einsum("nkd,nkd->nk", offset, offset))  # (n, n_max)
         radius = self.support_radius[neighbours]  # (n, n_max)
         r = distance / radius
