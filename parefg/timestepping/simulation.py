@@ -287,7 +287,9 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             self._add_history(state, t - self.scheme.dt, b)
         ut.copy(new.u)  # initial guess: the predictor
         if self.law is not None:
-            self.law.gate(ut)  # where friction acts in this step (friction law)
+            # where friction acts in this step (friction law), decided at the predictor:
+            # asked of new.u, its kinematics are kept for the solve's first residual
+            self.law.gate(new.u)
             self.law.set_time(t)
             self.law.begin_step(state.u)  # the discrete gradient's start level
         self.guard.check()  # the step's data, before they reach the solve

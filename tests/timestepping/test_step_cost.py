@@ -97,6 +97,37 @@ def test_reused_factorization_steps_give_the_bits_of_snes():
     assert np.array_equal(fast.law.slip, snes.law.slip)
 
 
+class _CountingOperator:
+    """The contact operator, counting its products with a DOF vector."""
+
+    def __init__(self, operator):
+        self.operator, self.products = operator, 0
+
+    def mult(self, x, y):
+        self.products += 1
+        return self.operator.mult(x, y)
+
+    def __getattr__(self, name):
+        return getattr(self.operator, name)
+
+
+def test_a_reused_step_forms_the_kinematics_of_each_vector_once():
+    """The friction gate, the first residual and the energy row share the predictor's and
+    the accepted u's kinematics: three products per reused step (the predictor, the Newton
+    direction, the accepted u), not one per question."""
+    sim = prepare(MPI.COMM_WORLD, "square", OVERRIDES)
+    assert sim.law.has_friction  # the gate asks for the predictor's kinematics
+    counter = _CountingOperator(sim.law.operator)
+    sim.law.operator = counter
+    state, reused = sim.start(), []
+    for n in range(1, sim.scene.time.n_steps + 1):
+        before, steps = counter.products, sim.solver.reused_steps
+        state = sim.step(state, n)
+        if sim.solver.reused_steps > steps:
+            reused.append(counter.products - before)
+    assert reused and set(reused) == {3}
+
+
 def test_options_that_snes_would_act_on_refuse_the_reused_step():
     assert _reused_step_allowed({"snes_rtol": "1e-12", "ksp_type": "preonly", "pc_type": "lu"})
     for option in ("snes_monitor", "snes_converged_reason", "snes_lag_jacobian", "snes_view",
