@@ -131,9 +131,11 @@ def trace_inverse_constants(
         stiffness = strain.reshape(-1, len(nodes) * 2).T @ stress.reshape(-1, len(nodes) * 2)
         edge_strain = _strain_rows(_local_gradients(edge_shape, edge_rows, nodes))
         traction = _traction_rows(edge_strain, edge_rule.normals[edge_rows], lam, mu)
-        weighted = edge_rule.weights[edge_rows, None, None] * traction  # (q, 2, n)
-        boundary = traction.reshape(-1, len(nodes) * 2).T @ weighted.reshape(-1, len(nodes) * 2)
-        constants[i] = _largest_generalized(boundary, stiffness)
+        # A = R^T R with R the traction rows scaled by the square roots of the (positive)
+        # Gauss weights: 2 x order rows, far fewer than the 2 n coefficients
+        root_weights = np.sqrt(edge_rule.weights[edge_rows])[:, None, None]
+        rows = (root_weights * traction).reshape(-1, len(nodes) * 2)  # (2 q, 2 n)
+        constants[i] = _largest_generalized(rows, stiffness)
     return constants
 
 
@@ -163,9 +165,14 @@ def nitsche_beta(
     return 2.0 * count * constants
 
 
-def _largest_generalized(a: np.ndarray, b: np.ndarray) -> float:
-    """Largest C of A x = C B x on the range of the symmetric semidefinite B."""
+def _largest_generalized(rows: np.ndarray, b: np.ndarray) -> float:
+    """Largest C of A x = C B x on the range of the symmetric semidefinite B, A = R^T R.
+
+    With B = V diag(lambda) V^T on its range, the problem is that of the symmetric
+    Lambda^-1/2 V^T A V Lambda^-1/2 = P^T P, P = R V Lambda^-1/2, whose largest eigenvalue
+    is that of the small P P^T (R has few rows: A has low rank).
+    """
     values, vectors = np.linalg.eigh(b)
     keep = values > RANGE_THRESHOLD * values[-1]
-    basis = vectors[:, keep] / np.sqrt(values[keep])
-    return float(np.linalg.eigvalsh(basis.T @ a @ basis)[-1])
+    projected = rows @ (vectors[:, keep] / np.sqrt(values[keep]))  # (n_rows, n_kept)
+    return float(np.linalg.eigvalsh(projected @ projected.T)[-1])
