@@ -8,7 +8,8 @@ in interleaved runs, with the ratio this / baseline:
    floor of a run (numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py initialized,
    mpi4py), ``parefg --help``, ``parefg scenes``, ``parefg run square --quiet`` (default
    scene, one rank; the user caches of scene data and meshes warm, as on every run after
-   the first), the same with the caches off (``PAREFG_CACHE=0``: a first run) and
+   the first), the same without a user cache (the data ``make setup`` prebuilt: what a
+   user gets by default), with every cache off (``PAREFG_CACHE=0``: derived and meshed) and
    ``mpirun -n 2 parefg run square``.
 2. ``python -X importtime`` of ``parefg run square``: cumulative import time by top-level
    package (self times summed over its modules), medians of --repeats.
@@ -65,6 +66,9 @@ def commands(python: str) -> dict[str, tuple[list[str], dict]]:
         "parefg --help": ([*parefg, "--help"], {}),
         "parefg scenes": ([*parefg, "scenes"], {}),
         RUN_LABEL: ([*parefg, *RUN_SQUARE], {}),
+        # what a user gets by default: no user cache, the data `make setup` prebuilt
+        "parefg run square, no user cache": ([*parefg, *RUN_SQUARE], {"PAREFG_CACHE_DIR": ""}),
+        # every cache off, the prebuilt data too: the run derives the scene and meshes
         "parefg run square, user caches off": ([*parefg, *RUN_SQUARE], {"PAREFG_CACHE": "0"}),
         "mpirun -n 2 parefg run square": (["mpirun", "-n", "2", *parefg, *RUN_SQUARE], {}),
     }
