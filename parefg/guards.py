@@ -68,24 +68,23 @@ class DataGuard:
         """
         with np.errstate(all="ignore"):
             values = np.asarray(field(*args), dtype=float)
-        return self.record(key, values, points, t, nonnegative=nonnegative)
+            return self.record(key, values, points, t, nonnegative=nonnegative)
 
     def record(self, key, values, points, t, nonnegative=False) -> np.ndarray:
         """Check ``values`` of a datum computed elsewhere, as :meth:`evaluate` checks its own.
 
         Not collective.  ``values`` (k, n) or (n,) at ``points`` (n, 2), a fresh array
-        (round-off negatives of a ``nonnegative`` datum are set to 0 in place).
+        (round-off negatives of a ``nonnegative`` datum are set to 0 in place).  Call it
+        under ``np.errstate(all="ignore")`` unless the values are finite and at most a few
+        DATA_BOUND in size (a split datum whose bound held): then no check can overflow.
         """
-        with np.errstate(all="ignore"):
-            rows = np.atleast_2d(values)  # (k, n), a view of values
-            bad = None
-            if nonnegative:
-                bad = ~(np.abs(rows) <= DATA_BOUND) | (
-                    rows < -FRICTION_FLOOR * self.scene.material.E
-                )
-                rows[~bad & (rows < 0.0)] = 0.0
-            elif not all_finite(rows) or np.abs(rows).max(initial=0.0) > DATA_BOUND:
-                bad = ~(np.abs(rows) <= DATA_BOUND)  # also NaN
+        rows = np.atleast_2d(values)  # (k, n), a view of values
+        bad = None
+        if nonnegative:
+            bad = ~(np.abs(rows) <= DATA_BOUND) | (rows < -FRICTION_FLOOR * self.scene.material.E)
+            rows[~bad & (rows < 0.0)] = 0.0
+        elif not all_finite(rows) or np.abs(rows).max(initial=0.0) > DATA_BOUND:
+            bad = ~(np.abs(rows) <= DATA_BOUND)  # also NaN
         self._evaluations.append((key, t, values.ndim == 2, nonnegative))
         if self._fault is _NO_FAULT and bad is not None and bad.any():
             component, point = _first_bad(bad, points)
@@ -173,6 +172,7 @@ class PointDatum:
         self.points, self.arguments, self.nonnegative = points, arguments, nonnegative
         self._again: Callable[[], tuple[np.ndarray, dict]] | None = None  # release_space's
         self.space: np.ndarray | None = None  # (K, *components, n) the f_k at the points
+        self._flat_space: np.ndarray | None = None  # (K, components * n) a view of space
         self.scale: np.ndarray | None = None  # (K,) max |f_k| (over all ranks with comm)
         self._split = -1  # index of the datum's a_k(t) in guard.splits (with a usable split)
         split = getattr(field, "separated", None)  # a plain callable has none
@@ -193,7 +193,7 @@ class PointDatum:
             usable = comm.allreduce(usable, op=MPI.LAND)
             comm.Allreduce(MPI.IN_PLACE, scale, op=MPI.MAX)
         if usable:
-            self.space, self.scale = space, scale
+            self.space, self.scale, self._flat_space = space, scale, flat
             self._split = guard.splits.add(split.time, scale)
 
     def _direct(self, arguments: dict[str, np.ndarray], t: float) -> np.ndarray:
@@ -211,7 +211,7 @@ class PointDatum:
         points and arguments are dropped too: only a step that evaluates the datum as
         written needs them, and gets them from ``again``.
         """
-        self.space = None
+        self.space = self._flat_space = None
         if again is not None and self.scale is not None:
             self.points = self.arguments = None
             self._again = again
@@ -229,11 +229,12 @@ class PointDatum:
 
     def values(self, t: float) -> np.ndarray:
         """The datum at the points at t, (*components, n), checked by the guard.  Not collective."""
-        a = self.coefficients(t)
-        if a is None or self.space is None:
+        a, space, flat = self.coefficients(t), self.space, self._flat_space
+        if a is None or space is None or flat is None:
             return self._checked(t)
-        with np.errstate(all="ignore"):
-            values = np.tensordot(a, self.space, axes=1)
+        # tensordot(a, space, axes=1) as numpy forms it, (1, K) x (K, components * n),
+        # without its Python layers; sum_k |a_k| max |f_k| <= DATA_BOUND: nothing overflows
+        values = np.dot(a.reshape(1, -1), flat).reshape(space.shape[1:])
         if self.nonnegative and np.any(values < 0.0):
             # the distributed (x - t)^2 has round-off negatives where the square has none:
             # the datum as written decides (and names a really negative value)
