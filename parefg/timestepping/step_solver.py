@@ -285,9 +285,12 @@ class ContactStepSolver:
         value, _ = self.law.directional(un, ut, d_nu, d_tau, 0.0)
         return un, ut, d_nu, d_tau, start_slope, start_slope + value
 
-    def _on_one_piece(self, un, ut, d_nu, d_tau) -> bool:
-        """Every point on the same affine piece of F at u and at u + d.  Collective."""
-        piece = self.law.piece(un, ut)
+    def _on_one_piece(self, un, ut, d_nu, d_tau, piece=None) -> bool:
+        """Every point on the same affine piece of F at u and at u + d.  Collective.
+
+        ``piece``: the law's pieces at u, if the caller has them."""
+        if piece is None:
+            piece = self.law.piece(un, ut)
         same_piece = np.all(piece >= 0) and np.array_equal(
             piece, self.law.piece(un + d_nu, ut + d_tau)
         )
@@ -429,14 +432,15 @@ class ContactStepSolver:
         un, ut = self.law.kinematics(u)
         built = self._signature
         stale = built is None or not np.array_equal(active, built)
-        if self.comm.allreduce(stale or bool(np.any(self.law.piece(un, ut) < 0))):
+        piece = self.law.piece(un, ut)
+        if self.comm.allreduce(stale or bool(np.any(piece < 0))):
             return None  # SNES rebuilds the Jacobian
         ksp = self.snes.getKSP()
         ksp.solve(residual, self._update)
         if ksp.getConvergedReason() < 0:
             return None
         un, ut, d_nu, d_tau, _, start = self._line_start(u, self._update)
-        if start >= 0.0 or not self._on_one_piece(un, ut, d_nu, d_tau):
+        if start >= 0.0 or not self._on_one_piece(un, ut, d_nu, d_tau, piece):
             return None
         u.axpy(-1.0, self._update)
         self.residual_norm = float("nan")  # not evaluated, as SNES's exact step
