@@ -291,9 +291,8 @@ class ContactStepSolver:
         ``piece``: the law's pieces at u, if the caller has them."""
         if piece is None:
             piece = self.law.piece(un, ut)
-        same_piece = np.all(piece >= 0) and np.array_equal(
-            piece, self.law.piece(un + d_nu, ut + d_tau)
-        )
+        # (piece == ...).all(): np.array_equal on arrays of one shape, without its layers
+        same_piece = (piece >= 0).all() and (piece == self.law.piece(un + d_nu, ut + d_tau)).all()
         return self.comm.allreduce(not same_piece) == 0
 
     def _not_descent(self, x: PETSc.Vec, slope: float) -> None:
@@ -431,7 +430,7 @@ class ContactStepSolver:
             return 0, 0
         un, ut = self.law.kinematics(u)
         built = self._signature
-        stale = built is None or not np.array_equal(active, built)
+        stale = built is None or not (active == built).all()  # one shape (this rank's points)
         piece = self.law.piece(un, ut)
         if self.comm.allreduce(stale or bool(np.any(piece < 0))):
             return None  # SNES rebuilds the Jacobian
@@ -486,7 +485,8 @@ class ReusedProduct:
 
     def _holds(self, x: PETSc.Vec) -> bool:
         """x has the values of the saved input on every rank.  Collective (one allreduce)."""
-        same = np.array_equal(x.getArray(readonly=True), self._input.getArray(readonly=True))
+        # one layout: np.array_equal without its layers
+        same = bool((x.getArray(readonly=True) == self._input.getArray(readonly=True)).all())
         return same if self.comm.size == 1 else self.comm.allreduce(same, op=MPI.LAND)
 
 
