@@ -353,10 +353,11 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         if law is None or not self.scheme.dynamic or not law.normal_force.uses_start_level:
             return
         un = law.kinematics(new.u)[0]
-        physical = self.scheme.trapezoidal
-        crossed = self.comm.allreduce(bool(np.any(law.crossing(un))), op=MPI.LOR)
+        physical = self.scheme.trapezoidal  # the same on every rank
         excess = law.end_level(un, physical)
-        if not (physical and crossed):
+        if not physical:
+            return
+        if not self.comm.allreduce(bool(np.any(law.crossing(un))), op=MPI.LOR):
             return
         law.operator.multTranspose(law.point_vector(excess), self._part)
         self._mass_solve(self._part, self._work)
