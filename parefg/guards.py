@@ -56,6 +56,7 @@ class DataGuard:
         # (key, t, vector datum, nonnegative) of each evaluation since the last check
         self._evaluations: list[tuple[tuple[str, ...], float, bool, bool]] = []
         self._fault = _NO_FAULT  # (evaluation, component, x, y, value) of the first bad value
+        self.splits = SplitCoefficients()  # the a_k(t) of the split data evaluated through it
 
     def evaluate(self, key, field, points, t, *args, nonnegative=False) -> np.ndarray:
         """``field(*args)`` at ``points`` (n, 2), its first bad value recorded.  Not collective.
@@ -67,24 +68,23 @@ class DataGuard:
         """
         with np.errstate(all="ignore"):
             values = np.asarray(field(*args), dtype=float)
-        return self.record(key, values, points, t, nonnegative=nonnegative)
+            return self.record(key, values, points, t, nonnegative=nonnegative)
 
     def record(self, key, values, points, t, nonnegative=False) -> np.ndarray:
         """Check ``values`` of a datum computed elsewhere, as :meth:`evaluate` checks its own.
 
         Not collective.  ``values`` (k, n) or (n,) at ``points`` (n, 2), a fresh array
-        (round-off negatives of a ``nonnegative`` datum are set to 0 in place).
+        (round-off negatives of a ``nonnegative`` datum are set to 0 in place).  Call it
+        under ``np.errstate(all="ignore")`` unless the values are finite and at most a few
+        DATA_BOUND in size (a split datum whose bound held): then no check can overflow.
         """
-        with np.errstate(all="ignore"):
-            rows = np.atleast_2d(values)  # (k, n), a view of values
-            bad = None
-            if nonnegative:
-                bad = ~(np.abs(rows) <= DATA_BOUND) | (
-                    rows < -FRICTION_FLOOR * self.scene.material.E
-                )
-                rows[~bad & (rows < 0.0)] = 0.0
-            elif not all_finite(rows) or np.abs(rows).max(initial=0.0) > DATA_BOUND:
-                bad = ~(np.abs(rows) <= DATA_BOUND)  # also NaN
+        rows = np.atleast_2d(values)  # (k, n), a view of values
+        bad = None
+        if nonnegative:
+            bad = ~(np.abs(rows) <= DATA_BOUND) | (rows < -FRICTION_FLOOR * self.scene.material.E)
+            rows[~bad & (rows < 0.0)] = 0.0
+        elif not all_finite(rows) or np.abs(rows).max(initial=0.0) > DATA_BOUND:
+            bad = ~(np.abs(rows) <= DATA_BOUND)  # also NaN
         self._evaluations.append((key, t, values.ndim == 2, nonnegative))
         if self._fault is _NO_FAULT and bad is not None and bad.any():
             component, point = _first_bad(bad, points)
@@ -172,9 +172,9 @@ class PointDatum:
         self.points, self.arguments, self.nonnegative = points, arguments, nonnegative
         self._again: Callable[[], tuple[np.ndarray, dict]] | None = None  # release_space's
         self.space: np.ndarray | None = None  # (K, *components, n) the f_k at the points
+        self._flat_space: np.ndarray | None = None  # (K, components * n) a view of space
         self.scale: np.ndarray | None = None  # (K,) max |f_k| (over all ranks with comm)
-        # (t, a_k(t) or None) of the last coefficients() call; NaN: none yet
-        self._last_coefficients: tuple[float, np.ndarray | None] = (math.nan, None)
+        self._split = -1  # index of the datum's a_k(t) in guard.splits (with a usable split)
         split = getattr(field, "separated", None)  # a plain callable has none
         if split is None:
             return
@@ -193,7 +193,8 @@ class PointDatum:
             usable = comm.allreduce(usable, op=MPI.LAND)
             comm.Allreduce(MPI.IN_PLACE, scale, op=MPI.MAX)
         if usable:
-            self.space, self.scale = space, scale
+            self.space, self.scale, self._flat_space = space, scale, flat
+            self._split = guard.splits.add(split.time, scale)
 
     def _direct(self, arguments: dict[str, np.ndarray], t: float) -> np.ndarray:
         """The datum evaluated as written at the points of ``arguments``, unchecked.
@@ -210,7 +211,7 @@ class PointDatum:
         points and arguments are dropped too: only a step that evaluates the datum as
         written needs them, and gets them from ``again``.
         """
-        self.space = None
+        self.space = self._flat_space = None
         if again is not None and self.scale is not None:
             self.points = self.arguments = None
             self._again = again
@@ -218,30 +219,22 @@ class PointDatum:
     def coefficients(self, t: float) -> np.ndarray | None:
         """(K,) the a_k(t) when the split gives the values at t, else None (read-only).
 
-        The last t's answer is kept: a step asks for it several times (loads, Dirichlet
-        data and their energy shares).  Not collective."""
+        None where some a_k(t) is not finite or sum_k |a_k(t)| max |f_k| exceeds
+        DATA_BOUND.  Evaluated with the guard's other split data (:class:`SplitCoefficients`):
+        a step asks for it several times (loads, Dirichlet data and their energy shares).
+        Not collective."""
         if self.scale is None:  # no usable split (set with space, kept when space is released)
             return None
-        if self._last_coefficients[0] != t:
-            self._last_coefficients = (t, self._split_coefficients(t))
-        return self._last_coefficients[1]
-
-    def _split_coefficients(self, t: float) -> np.ndarray | None:
-        """The a_k(t), or None where they are not finite or reach DATA_BOUND."""
-        with np.errstate(all="ignore"):
-            a = self.field.separated.time(t)
-            if not all_finite(a) or not np.abs(a) @ self.scale <= DATA_BOUND:
-                return None
-        a.flags.writeable = False
-        return a
+        return self.guard.splits.at(t)[self._split]
 
     def values(self, t: float) -> np.ndarray:
         """The datum at the points at t, (*components, n), checked by the guard.  Not collective."""
-        a = self.coefficients(t)
-        if a is None or self.space is None:
+        a, space, flat = self.coefficients(t), self.space, self._flat_space
+        if a is None or space is None or flat is None:
             return self._checked(t)
-        with np.errstate(all="ignore"):
-            values = np.tensordot(a, self.space, axes=1)
+        # tensordot(a, space, axes=1) as numpy forms it, (1, K) x (K, components * n),
+        # without its Python layers; sum_k |a_k| max |f_k| <= DATA_BOUND: nothing overflows
+        values = np.dot(a.reshape(1, -1), flat).reshape(space.shape[1:])
         if self.nonnegative and np.any(values < 0.0):
             # the distributed (x - t)^2 has round-off negatives where the square has none:
             # the datum as written decides (and names a really negative value)
@@ -257,6 +250,59 @@ class PointDatum:
         return self.guard.evaluate(
             self.key, self.field, self.points, t, *args, nonnegative=self.nonnegative
         )
+
+
+class SplitCoefficients:
+    """The a_k(t) of every split datum of a run (:class:`PointDatum`), together.  Not collective.
+
+    A step asks every split datum (body force, tractions, Dirichlet data, friction bound)
+    for its a_k(t) at the same t, and the data derived from one solution share their time
+    parts (``cos(t) - 1``): at the first call for a t, each distinct time part is evaluated
+    once, all under one ``np.errstate``.  The answers of the last CACHED_TIMES times are
+    kept (generalized-alpha asks for t_{n-1} and t_n).
+    """
+
+    CACHED_TIMES = 2
+
+    def __init__(self) -> None:
+        self._parts: dict[object, int] = {}  # key of a time part -> its index in _fields
+        self._fields: list[Callable[[float], np.ndarray]] = []  # the distinct time parts
+        self._data: list[tuple[int, np.ndarray]] = []  # per datum: its time part, (K,) scale
+        self._kept: dict[float, list[np.ndarray | None]] = {}  # t -> per datum a_k(t) or None
+
+    def add(self, time_part, scale: np.ndarray) -> int:
+        """Register a datum by its time part (a CompiledField of t) and its (K,) max |f_k|;
+        returns the datum's index in the lists of :meth:`at`."""
+        texts = getattr(time_part, "texts", None)
+        key = time_part if texts is None else (tuple(texts), time_part.args)
+        part = self._parts.setdefault(key, len(self._fields))
+        if part == len(self._fields):
+            self._fields.append(time_part)
+        self._data.append((part, scale))
+        self._kept.clear()
+        return len(self._data) - 1
+
+    def at(self, t: float) -> list[np.ndarray | None]:
+        """Per registered datum: its a_k(t) (read-only), or None where some a_k(t) is not
+        finite or sum_k |a_k(t)| scale_k exceeds DATA_BOUND."""
+        kept = self._kept.get(t)
+        if kept is None:
+            if len(self._kept) >= self.CACHED_TIMES:
+                del self._kept[next(iter(self._kept))]
+            kept = self._kept[t] = self._evaluate(t)
+        return kept
+
+    def _evaluate(self, t: float) -> list[np.ndarray | None]:
+        with np.errstate(all="ignore"):
+            parts = [field(t) for field in self._fields]
+            finite = [all_finite(a) for a in parts]
+            out: list[np.ndarray | None] = []
+            for part, scale in self._data:
+                a = parts[part]
+                out.append(a if finite[part] and np.abs(a) @ scale <= DATA_BOUND else None)
+        for a in parts:
+            a.flags.writeable = False
+        return out
 
 
 def _at_time(arguments: dict[str, np.ndarray], t: float) -> tuple:

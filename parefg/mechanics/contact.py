@@ -41,6 +41,7 @@ and keeps it fixed through one such convex solve; the fixed point around it is t
 
 from __future__ import annotations
 
+import operator
 from contextlib import contextmanager
 
 import numpy as np
@@ -95,6 +96,11 @@ class ContactLaw(ContactFrame):
         self.level_pressure = np.zeros(len(self.weights))
         self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
         self.step_friction = np.zeros(len(self.weights))
+        # (the objects they were computed from, (pressure, friction)) of the last forces()
+        self._kept_forces: tuple[tuple, tuple[np.ndarray, np.ndarray]] = (
+            (),
+            (self.slip, self.slip),
+        )
 
     def _friction_bounds(self) -> list[tuple[np.ndarray, PointDatum]]:
         """(points of the part, its g as a PointDatum) of each contact part.  Not collective."""
@@ -222,11 +228,40 @@ class ContactLaw(ContactFrame):
         return down | up
 
     def forces(self, un, ut) -> tuple[np.ndarray, np.ndarray]:
-        """Normal force of the step (see :meth:`step_pressure`) and friction force f."""
-        pressure = self.step_pressure(un)
+        """Normal force of the step (see :meth:`step_pressure`) and friction force f.
+
+        The last answer for read-only (u_nu, u_tau) (:meth:`kinematics`' results) is kept
+        with the law's state it was computed from: a Newton step asks for the forces at its
+        iterate twice (the residual, the line search's start).  The law replaces its arrays
+        (start level, level force, slip, bound) and never writes into them, so the same
+        objects hold the same values.  Do not write into the returned arrays.
+        """
+        state = self._force_state(un, ut)
+        kept_state, kept = self._kept_forces
+        if len(kept_state) == len(state) and all(map(operator.is_, kept_state, state)):
+            return kept
+        forces = self.step_pressure(un), self.friction_force(ut)
+        if not (un.flags.writeable or ut.flags.writeable):
+            self._kept_forces = (state, forces)
+        return forces
+
+    def _force_state(self, un, ut) -> tuple:
+        """The objects the forces at (u_nu, u_tau) are computed from."""
+        return (
+            un,
+            ut,
+            self.normal_force,
+            self.start_penetration,
+            self.level_pressure,
+            self.slip,
+            self.bound,
+        )
+
+    def friction_force(self, ut) -> np.ndarray:
+        """f = clip(alpha_T (u_tau - xi), -g, g) at the points (zeros without friction)."""
         if not self.has_friction:
-            return pressure, np.zeros_like(ut)
-        return pressure, np.clip(self.alpha_t * (ut - self.slip), -self.bound, self.bound)
+            return np.zeros_like(ut)
+        return np.clip(self.alpha_t * (ut - self.slip), -self.bound, self.bound)
 
     def status(self, un, ut) -> np.ndarray:
         """OPEN / STICK / SLIP per point (int8); closed points stick unless |f| reached g."""
@@ -380,7 +415,9 @@ class ContactLaw(ContactFrame):
         slope of the current linear piece of the (monotone, piecewise linear) directional
         derivative.
         """
-        un_s, ut_s = un + step * d_nu, ut + step * d_tau
+        # at step 0 the iterate itself (the same values: un + 0 d_nu differs from un at most
+        # in the sign of a zero), whose forces the residual has just computed
+        un_s, ut_s = (un, ut) if step == 0.0 else (un + step * d_nu, ut + step * d_tau)
         pressure, friction = self.forces(un_s, ut_s)
         value = np.dot(self.weights, d_nu * pressure + d_tau * friction)
         slope = np.dot(self.weights, self.step_slope(un_s) * d_nu**2)
@@ -402,7 +439,7 @@ class ContactLaw(ContactFrame):
         sums it with the other energies of the step).  Not collective.
         """
         self.step_status = self.status(un, ut)
-        self.step_friction = self.forces(un, ut)[1]
+        self.step_friction = self.friction_force(ut)
         if not self.has_friction:
             return 0.0
         z = ut - self.slip

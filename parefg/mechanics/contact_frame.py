@@ -62,6 +62,7 @@ class ContactFrame:
         self.operator = petsc_matrix(comm, local, n_local, n_dofs)
         # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
         self._point_vec = self.operator.createVecLeft()
+        self._pair_weights = np.repeat(self.weights, 2).reshape(-1, 2)  # (n_c, 2) w_q, w_q
         self._traction_vec: PETSc.Vec | None = None
         # the last KEPT_KINEMATICS results: (vector, its handle and state, (u_nu, u_tau))
         self._kept: list[tuple[PETSc.Vec, tuple[int, int], tuple[np.ndarray, np.ndarray]]] = []
@@ -80,7 +81,11 @@ class ContactFrame:
         another vector meanwhile.
         """
         key = (u.handle, u.stateGet())
-        kept = next((result for vec, k, result in self._kept if k == key), None)
+        kept = None
+        for _, kept_key, result in self._kept:
+            if kept_key == key:
+                kept = result
+                break
         if self.comm.size > 1:
             everywhere = np.array(kept is not None, dtype=np.int32)
             self.comm.Allreduce(MPI.IN_PLACE, everywhere, op=MPI.LAND)
@@ -121,9 +126,10 @@ class ContactFrame:
     def _add_point_forces(self, residual: PETSc.Vec, pressure, friction) -> None:
         """residual += B_nu^T (w pressure) + B_tau^T (w friction).  Collective."""
         point_forces = self._point_vec
-        point_forces.setArray(
-            np.column_stack([pressure, friction]).ravel() * np.repeat(self.weights, 2)
-        )
+        pairs = np.empty((len(self.weights), 2))  # (n_c, 2) w (pressure, friction) per point
+        pairs[:, 0], pairs[:, 1] = pressure, friction
+        pairs *= self._pair_weights
+        point_forces.setArray(pairs.ravel())
         self.operator.multTransposeAdd(point_forces, residual, residual)
 
 

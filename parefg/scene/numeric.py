@@ -135,6 +135,9 @@ def _build(node: ast.AST, names: frozenset) -> Evaluator:
         function, arities = FUNCTIONS.get(node.func.id, (_unknown, ()))
         if len(node.args) in arities:
             operands = [_build(arg, names) for arg in node.args]
+            if len(operands) == 1:  # most calls (sin, exp, Abs): no generator per evaluation
+                operand = operands[0]
+                return lambda values: function(operand(values))
             return lambda values: function(*(operand(values) for operand in operands))
     raise UnsupportedText(f"{type(node).__name__} node")
 

@@ -146,7 +146,7 @@ class EnergyLedger:
             # which may lie outside the data's domain (t < 0).
             old_ubar, old_force = previous.get(name, (ubar, force))
             mean_force = 0.5 * (force + old_force)
-            work -= np.dot(points.weights, np.sum(mean_force * (ubar - old_ubar), axis=1))
+            work -= np.dot(points.weights, (mean_force * (ubar - old_ubar)).sum(axis=1))
             current[name] = (ubar, force)
         self._dirichlet_previous = current
         return energy, work

@@ -177,7 +177,8 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         if self.law is not None:
             contact_energy = self.law.normal_energy(self.law.kinematics(state.u)[0])
             contact_energy += self.comm.allreduce(self.law.local_nitsche_energy(state.u))
-        self._check_state(state, 0)
+        with np.errstate(over="ignore"):  # huge finite values may overflow its sums
+            self._check_state(state, 0)
         row = {
             "time": 0.0,
             "newton_iterations": 0,
@@ -305,9 +306,10 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         self.max_newton_per_step = max(self.max_newton_per_step, newton)
         self.scheme.update(state, new, ut, vt)
         self._contact_acceleration(new)
-        self._check_state(new, n)
-        # A finite but huge state overflows the energies: _record's check reports it.
+        # A finite but huge state overflows the energies (and the sums of _check_state):
+        # _record's check reports it.
         with np.errstate(over="ignore", invalid="ignore"):
+            self._check_state(new, n)
             self._record(state, new, t, forces, newton, linear)
         self._spare = state
         return new
@@ -353,10 +355,11 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         if law is None or not self.scheme.dynamic or not law.normal_force.uses_start_level:
             return
         un = law.kinematics(new.u)[0]
-        physical = self.scheme.trapezoidal
-        crossed = self.comm.allreduce(bool(np.any(law.crossing(un))), op=MPI.LOR)
+        physical = self.scheme.trapezoidal  # the same on every rank
         excess = law.end_level(un, physical)
-        if not (physical and crossed):
+        if not physical:
+            return
+        if not self.comm.allreduce(bool(np.any(law.crossing(un))), op=MPI.LOR):
             return
         law.operator.multTranspose(law.point_vector(excess), self._part)
         self._mass_solve(self._part, self._work)

@@ -53,7 +53,8 @@ class StepChecks:
     def _check_state(self, state: State, n: int) -> None:
         """SolverError naming the first non-finite field of u, v, a at step n.  Collective.
 
-        One allreduce (of a bit mask).
+        One allreduce (of a bit mask).  Call it under ``np.errstate(over="ignore")``: huge
+        finite values may overflow the sums (:func:`~parefg.guards.all_finite`).
         """
         fields = {"displacement": state.u, "velocity": state.v, "acceleration": state.a}
         self._raise_non_finite(
@@ -87,18 +88,19 @@ class StepChecks:
 
         ``fields`` maps names to this rank's values (the same names on every rank).
         """
-        self._raise_non_finite("non-finite output field ", fields, n)
+        with np.errstate(over="ignore"):  # huge finite values may overflow the sums
+            self._raise_non_finite("non-finite output field ", fields, n)
 
     def _raise_non_finite(self, what: str, arrays: dict[str, np.ndarray], n: int) -> None:
         """SolverError naming the first of ``arrays`` that is not finite on some rank.
 
         Collective: one allreduce of a bit mask (bit i: array i has a non-finite entry).
+        Call it under ``np.errstate(over="ignore")``: huge finite values may overflow the sums.
         """
         local = 0
-        with np.errstate(over="ignore"):  # huge finite values may overflow the sum
-            for bit, values in enumerate(arrays.values()):
-                if not all_finite(np.asarray(values, dtype=float)):
-                    local |= 1 << bit
+        for bit, values in enumerate(arrays.values()):
+            if not all_finite(np.asarray(values, dtype=float)):
+                local |= 1 << bit
         bad = self.comm.allreduce(local, op=MPI.BOR)
         for bit, name in enumerate(arrays):
             if bad >> bit & 1:

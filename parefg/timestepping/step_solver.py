@@ -285,12 +285,14 @@ class ContactStepSolver:
         value, _ = self.law.directional(un, ut, d_nu, d_tau, 0.0)
         return un, ut, d_nu, d_tau, start_slope, start_slope + value
 
-    def _on_one_piece(self, un, ut, d_nu, d_tau) -> bool:
-        """Every point on the same affine piece of F at u and at u + d.  Collective."""
-        piece = self.law.piece(un, ut)
-        same_piece = np.all(piece >= 0) and np.array_equal(
-            piece, self.law.piece(un + d_nu, ut + d_tau)
-        )
+    def _on_one_piece(self, un, ut, d_nu, d_tau, piece=None) -> bool:
+        """Every point on the same affine piece of F at u and at u + d.  Collective.
+
+        ``piece``: the law's pieces at u, if the caller has them."""
+        if piece is None:
+            piece = self.law.piece(un, ut)
+        # (piece == ...).all(): np.array_equal on arrays of one shape, without its layers
+        same_piece = (piece >= 0).all() and (piece == self.law.piece(un + d_nu, ut + d_tau)).all()
         return self.comm.allreduce(not same_piece) == 0
 
     def _not_descent(self, x: PETSc.Vec, slope: float) -> None:
@@ -428,15 +430,16 @@ class ContactStepSolver:
             return 0, 0
         un, ut = self.law.kinematics(u)
         built = self._signature
-        stale = built is None or not np.array_equal(active, built)
-        if self.comm.allreduce(stale or bool(np.any(self.law.piece(un, ut) < 0))):
+        stale = built is None or not (active == built).all()  # one shape (this rank's points)
+        piece = self.law.piece(un, ut)
+        if self.comm.allreduce(stale or bool(np.any(piece < 0))):
             return None  # SNES rebuilds the Jacobian
         ksp = self.snes.getKSP()
         ksp.solve(residual, self._update)
         if ksp.getConvergedReason() < 0:
             return None
         un, ut, d_nu, d_tau, _, start = self._line_start(u, self._update)
-        if start >= 0.0 or not self._on_one_piece(un, ut, d_nu, d_tau):
+        if start >= 0.0 or not self._on_one_piece(un, ut, d_nu, d_tau, piece):
             return None
         u.axpy(-1.0, self._update)
         self.residual_norm = float("nan")  # not evaluated, as SNES's exact step
@@ -482,7 +485,8 @@ class ReusedProduct:
 
     def _holds(self, x: PETSc.Vec) -> bool:
         """x has the values of the saved input on every rank.  Collective (one allreduce)."""
-        same = np.array_equal(x.getArray(readonly=True), self._input.getArray(readonly=True))
+        # one layout: np.array_equal without its layers
+        same = bool((x.getArray(readonly=True) == self._input.getArray(readonly=True)).all())
         return same if self.comm.size == 1 else self.comm.allreduce(same, op=MPI.LAND)
 
 

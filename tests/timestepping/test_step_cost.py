@@ -15,6 +15,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from parefg.run import prepare
+from parefg.scene.numeric import CompiledField
 from parefg.timestepping.step_solver import _reused_step_allowed
 
 # square, m = 2, h = 1/8: contact on the bottom with sliding friction, 20 steps in which
@@ -150,6 +151,7 @@ def test_snes_monitor_is_honoured_at_every_step():
 ONE_RANK_READER = """
 from mpi4py import MPI
 from parefg.run import prepare
+from parefg.scene.numeric import CompiledField
 comm = MPI.COMM_WORLD
 sim = prepare(comm, "stick", ["time.T=0.15"])
 state = sim.start()
@@ -177,3 +179,97 @@ def test_a_view_taken_on_one_rank_does_not_split_the_ranks_on_the_kept_kinematic
         pytest.fail("the 2-rank job hung")
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.count("done") == 2
+
+
+def test_kept_contact_forces_follow_the_law_state_and_their_arguments():
+    """ContactLaw.forces keeps its last answer for read-only (u_nu, u_tau): every change of
+    the law's state it reads (start level, level force, slip, bound, normal force) and
+    every writable argument gives the forces computed afresh."""
+    sim = prepare(MPI.COMM_WORLD, "square", OVERRIDES)
+    law, state = sim.law, sim.start()
+    for n in (1, 2):
+        state = sim.step(state, n)
+    un, ut = law.kinematics(state.u)
+    first = law.forces(un, ut)
+    assert law.forces(un, ut) is first  # the same arrays and state: kept
+
+    def check(un, ut):
+        fresh = law.step_pressure(un), law.friction_force(ut)
+        for value, expected in zip(law.forces(un, ut), fresh, strict=True):
+            assert np.array_equal(value, expected)
+
+    changes = [
+        lambda: setattr(law, "start_penetration", law.start_penetration - 1e-3),
+        lambda: setattr(law, "level_pressure", law.level_pressure + 1.0),
+        lambda: setattr(law, "slip", law.slip + 1e-3),
+        lambda: law.set_time(0.6),
+    ]
+    for change in changes:
+        change()
+        check(un, ut)
+    with law.endpoint_force():
+        check(un, ut)
+    check(un, ut)
+    # writable arguments are not kept: a write into them gives new forces
+    un_copy, ut_copy = un.copy(), ut.copy()
+    law.forces(un_copy, ut_copy)
+    un_copy += 1e-3
+    ut_copy -= 1e-3
+    check(un_copy, ut_copy)
+
+
+def test_a_reused_step_forms_the_step_pressure_twice():
+    """The residual at u_0 and the line search's start share the forces at u_0, and the
+    slip update needs only the friction force: the step pressure is formed for the first
+    residual and for C_n at the accepted u (end_level), two evaluations per reused step
+    (four before)."""
+    sim = prepare(MPI.COMM_WORLD, "square", OVERRIDES)
+    law, calls = sim.law, [0]
+    step_pressure = law.step_pressure
+
+    def counted(un):
+        calls[0] += 1
+        return step_pressure(un)
+
+    law.step_pressure = counted
+    state, reused = sim.start(), []
+    for n in range(1, sim.scene.time.n_steps + 1):
+        before, steps = calls[0], sim.solver.reused_steps
+        state = sim.step(state, n)
+        if sim.solver.reused_steps > steps:
+            reused.append(calls[0] - before)
+    assert reused and set(reused) == {2}
+
+
+def test_a_step_evaluates_each_distinct_time_part_once(monkeypatch):
+    """The square scene's split data (body force, tractions, Dirichlet data, friction bound)
+    share their time parts: three distinct ones, each evaluated once per step (five
+    evaluations, one per datum, before)."""
+    sim = prepare(MPI.COMM_WORLD, "square", OVERRIDES)
+    parts = {
+        tuple(field.separated.time.texts)
+        for field in (
+            sim.scene.loads.f,
+            *(
+                getattr(bc, key)
+                for bc in sim.scene.boundaries.values()
+                for key in ("value", "traction", "friction")
+            ),
+        )
+        if field is not None and field.separated is not None
+    }
+    assert len(parts) == 3
+    evaluations = []
+    call = CompiledField.__call__
+
+    def counted(self, *values):
+        if self.args == ("t",):
+            evaluations.append(tuple(self.texts))
+        return call(self, *values)
+
+    state = sim.start()
+    monkeypatch.setattr(CompiledField, "__call__", counted)
+    for n in range(1, 4):
+        evaluations.clear()
+        state = sim.step(state, n)
+        assert sorted(evaluations) == sorted(parts)
