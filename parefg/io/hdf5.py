@@ -68,15 +68,16 @@ def store_attributes(h5file, metadata: dict) -> None:
     key ``key`` is stored as the JSON string ``key_json`` and each scalar leaf as the flat
     attribute ``key.a.b``; other values (lists) as JSON strings.
     """
+    attrs = h5file.attrs  # one manager: h5py builds a new one at every .attrs
     for key, value in metadata.items():
         if isinstance(value, dict):
-            h5file.attrs[f"{key}_json"] = json.dumps(value, default=_to_json)
+            attrs[f"{key}_json"] = json.dumps(value, default=_to_json)
             for flat_key, leaf in _flatten(value, key):
-                h5file.attrs[flat_key] = leaf
+                attrs[flat_key] = leaf
         elif _is_scalar(value):
-            h5file.attrs[key] = value
+            attrs[key] = value
         elif value is not None:
-            h5file.attrs[key] = json.dumps(value, default=_to_json)
+            attrs[key] = json.dumps(value, default=_to_json)
 
 
 def _flatten(tree: dict, prefix: str):
