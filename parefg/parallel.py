@@ -203,11 +203,12 @@ def _merge_rows(own: sp.csr_matrix, rows, cols, data) -> sp.csr_matrix:
     """``own`` (canonical CSR) plus the entries (rows, cols, data), explicit zeros kept.
 
     Only the rows the entries touch are re-summed (through COO, which adds duplicates and
-    keeps zeros); the others are copied to their new offsets in one vectorized move.
+    keeps zeros); the runs of untouched rows between them are copied as slices, so the
+    cost is one pass over ``own`` plus the touched rows (the partition's interface), not
+    several full-length index arrays.
     """
     touched = np.unique(rows)
     compact = np.searchsorted(touched, rows)
-    counts = np.diff(own.indptr)
     # own entries of the touched rows, then the received ones, as one small COO
     first, last = own.indptr[touched], own.indptr[touched + 1]
     taken = np.repeat(np.arange(len(touched)), last - first)
@@ -222,21 +223,24 @@ def _merge_rows(own: sp.csr_matrix, rows, cols, data) -> sp.csr_matrix:
         ),
         shape=(len(touched), own.shape[1]),
     ).tocsr()  # sums duplicates, sorts columns, keeps explicit zeros
-    new_counts = counts.copy()
+    new_counts = np.diff(own.indptr)
     new_counts[touched] = np.diff(small.indptr)
-    indptr = np.zeros(len(counts) + 1, dtype=np.int64)
+    indptr = np.zeros(len(new_counts) + 1, dtype=np.int64)
     np.cumsum(new_counts, out=indptr[1:])
-    indices = np.empty(indptr[-1], dtype=own.indices.dtype)
-    values = np.empty(indptr[-1], dtype=own.data.dtype)
-    kept_row = np.ones(len(counts), dtype=bool)
-    kept_row[touched] = False
-    kept = np.repeat(kept_row, counts)
-    shift = np.repeat(indptr[:-1] - own.indptr[:-1], counts)
-    destination = (np.arange(own.nnz) + shift)[kept]
-    indices[destination], values[destination] = own.indices[kept], own.data[kept]
-    small_rows = np.repeat(np.arange(len(touched)), np.diff(small.indptr))
-    destination = indptr[touched][small_rows] + np.arange(small.nnz) - small.indptr[small_rows]
-    indices[destination], values[destination] = small.indices, small.data
+    # in row order: the run of untouched rows before each touched row (one slice of own),
+    # then that row's summed entries; the run after the last touched row closes the list
+    run_starts = own.indptr[np.concatenate([[0], touched + 1])]
+    run_ends = own.indptr[np.append(touched, len(new_counts))]
+    index_parts, value_parts = [], []
+    for k in range(len(touched)):
+        run = slice(run_starts[k], run_ends[k])
+        summed = slice(small.indptr[k], small.indptr[k + 1])
+        index_parts += [own.indices[run], small.indices[summed]]
+        value_parts += [own.data[run], small.data[summed]]
+    index_parts.append(own.indices[run_starts[-1] : run_ends[-1]])
+    value_parts.append(own.data[run_starts[-1] : run_ends[-1]])
+    indices = np.concatenate(index_parts).astype(own.indices.dtype, copy=False)
+    values = np.concatenate(value_parts).astype(own.data.dtype, copy=False)
     merged = sp.csr_matrix((values, indices, indptr), shape=own.shape)
     merged.has_canonical_format = True
     return merged
