@@ -84,11 +84,19 @@ def _stiffness_blocks(gradient_gram: np.ndarray, lam: float, mu: float) -> np.nd
 
     K[2I+a, 2J+b] = int lam d_a phi_I d_b phi_J
                     + mu (delta_ab grad phi_I . grad phi_J + d_b phi_I d_a phi_J).
-    Returns (nnz, 2, 2).
+    Returns (nnz, 2, 2).  One new (nnz, 2, 2) array and one temporary: at 1e5 nodes these
+    are ~150 MB each, whose first touch costs more than the arithmetic (a 206082-DOF
+    build: 0.84 -> 0.45 s against lam G + mu G^T + mu tr(G) I with its four temporaries,
+    same bits).
     """
-    laplace = gradient_gram[:, 0, 0] + gradient_gram[:, 1, 1]  # (nnz,)
-    blocks = lam * gradient_gram + mu * gradient_gram.transpose(0, 2, 1)
-    return blocks + mu * laplace[:, None, None] * np.eye(2)
+    mu_laplace = mu * (gradient_gram[:, 0, 0] + gradient_gram[:, 1, 1])  # (nnz,)
+    blocks = np.multiply(gradient_gram, lam)
+    blocks += mu * gradient_gram.transpose(0, 2, 1)
+    blocks[:, 0, 0] += mu_laplace
+    blocks[:, 1, 1] += mu_laplace
+    blocks[:, 0, 1] += 0.0  # as adding mu tr(G) x 0 did: -0.0 becomes +0.0
+    blocks[:, 1, 0] += 0.0
+    return blocks
 
 
 def _mass_blocks(gram: np.ndarray) -> np.ndarray:
