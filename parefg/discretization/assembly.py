@@ -204,8 +204,10 @@ def interleaved(indptr, indices, blocks: np.ndarray, diagonal_only: bool = False
 
     See :meth:`Coupling.interleaved`.
     """
+    # float64, in any layout (the mass passes a zero-stride view: no copy is made of it)
+    blocks = blocks if blocks.dtype == np.float64 else blocks.astype(np.float64)
     out_ptr, out_indices, data = kernels_for(len(indptr) - 1).interleave_blocks(
-        indptr, indices, np.ascontiguousarray(blocks, dtype=np.float64), diagonal_only
+        indptr, indices, blocks, diagonal_only
     )
     n_dofs = 2 * (len(indptr) - 1)
     return sp.csr_matrix((data, out_indices, out_ptr), shape=(n_dofs, n_dofs))
