@@ -79,6 +79,25 @@ class Discretization:
         return self.mass.createVecRight()
 
 
+def scene_cloud_on_root(comm, scene, budget: Budget | None = None):
+    """The scene's node cloud, meshed (or read from a cache) on rank 0, None on the other
+    ranks (:func:`~parefg.geometry.gmsh_mesh.mesh_on_root`).  Collective.
+
+    The one place a run's mesh inputs are taken from its scene: the prebuilt meshes of
+    scripts/setup/prebuild_scenes.py are keyed by these.
+    """
+    return mesh_on_root(
+        comm,
+        scene.domain,
+        scene.discretization.h,
+        scene.discretization.cells,
+        scene.discretization.jitter,
+        scene.discretization.seed,
+        budget,
+        min_cells=scene.discretization.degree,
+    )
+
+
 def _stiffness_blocks(gradient_gram: np.ndarray, lam: float, mu: float) -> np.ndarray:
     """2 x 2 blocks of K per scalar entry from S[p, a, b] = int d_a phi_I d_b phi_J.
 
@@ -128,16 +147,8 @@ class _Builder(BoundaryOperators):
         self.timings = {"mesh": 0.0, "neighbours": 0.0, "mls": 0.0, "assembly": 0.0}
         self.n_contact = 0
         with phase(self.timings, "mesh"):
-            cloud = mesh_on_root(  # None on ranks > 0: partition_on_root sends them theirs
-                comm,
-                scene.domain,
-                scene.discretization.h,
-                scene.discretization.cells,
-                scene.discretization.jitter,
-                scene.discretization.seed,
-                budget,
-                min_cells=scene.discretization.degree,
-            )
+            # None on ranks > 0: partition_on_root sends them theirs
+            cloud = scene_cloud_on_root(comm, scene, budget)
             budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
             self.cloud, self.partition = partition_on_root(comm, cloud)
         self.n_nodes = len(self.cloud.coords)

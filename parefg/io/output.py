@@ -277,7 +277,7 @@ class ResultWriter:
             else:
                 trailing, dtype = values.shape[1:], values.dtype
             if self.comm.size == 1:  # created with its values: one HDF5 call less per field
-                self.file.create_dataset(path, data=rows.to_block(values.astype(dtype)))
+                self.file.create_dataset(path, data=rows.to_block(values.astype(dtype, copy=False)))
             else:
                 shape = (rows.n_global, *trailing)
                 rows.write(self.file.create_dataset(path, shape=shape, dtype=dtype), values)

@@ -97,10 +97,7 @@ class ContactLaw(ContactFrame):
         self.step_status = np.zeros(len(self.weights), dtype=np.int8)  # at the last step's end
         self.step_friction = np.zeros(len(self.weights))
         # (the objects they were computed from, (pressure, friction)) of the last forces()
-        self._kept_forces: tuple[tuple, tuple[np.ndarray, np.ndarray]] = (
-            (),
-            (self.slip, self.slip),
-        )
+        self._kept_forces: tuple[tuple, tuple[np.ndarray, np.ndarray]] | None = None
 
     def _friction_bounds(self) -> list[tuple[np.ndarray, PointDatum]]:
         """(points of the part, its g as a PointDatum) of each contact part.  Not collective."""
@@ -237,9 +234,8 @@ class ContactLaw(ContactFrame):
         objects hold the same values.  Do not write into the returned arrays.
         """
         state = self._force_state(un, ut)
-        kept_state, kept = self._kept_forces
-        if len(kept_state) == len(state) and all(map(operator.is_, kept_state, state)):
-            return kept
+        if self._kept_forces is not None and all(map(operator.is_, self._kept_forces[0], state)):
+            return self._kept_forces[1]
         forces = self.step_pressure(un), self.friction_force(ut)
         if not (un.flags.writeable or ut.flags.writeable):
             self._kept_forces = (state, forces)

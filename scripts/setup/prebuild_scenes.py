@@ -26,7 +26,7 @@ petsc4py.init(sys.argv[:1])
 from mpi4py import MPI  # noqa: E402
 
 from parefg import user_cache  # noqa: E402
-from parefg.geometry.gmsh_mesh import mesh_on_root  # noqa: E402
+from parefg.discretization.operators import scene_cloud_on_root  # noqa: E402
 from parefg.scene.loader import builtin_scenes, load_scene  # noqa: E402
 
 
@@ -40,16 +40,7 @@ def prebuild(target: Path) -> list[str]:
     os.environ["PAREFG_PREBUILT_DIR"] = ""  # derive and mesh: read no older entry
     names = sorted(builtin_scenes())
     for name in names:
-        scene = load_scene(name)
-        mesh_on_root(
-            MPI.COMM_SELF,
-            scene.domain,
-            scene.discretization.h,
-            scene.discretization.cells,
-            scene.discretization.jitter,
-            scene.discretization.seed,
-            min_cells=scene.discretization.degree,
-        )
+        scene_cloud_on_root(MPI.COMM_SELF, load_scene(name))  # the run's mesh inputs
     shutil.rmtree(target, ignore_errors=True)
     os.replace(staging, target)
     return names

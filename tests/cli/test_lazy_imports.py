@@ -10,6 +10,7 @@ prints, as its last line, the heavy modules it ended up with.
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from conftest import QUICK, REPO, mpi_env
@@ -44,6 +45,22 @@ def test_light_commands_import_no_heavy_module(argv):
     assert lines[-1] == "", f"imported {lines[-1]}"
 
 
+def probe_run(argv, heavy, env, cwd=None) -> tuple[str, dict]:
+    """Run ``parefg argv`` (a run with --out) in a fresh interpreter: the ``heavy`` modules
+    it imported (space-separated) and its summary.json without timings and memory."""
+    probe = PROBE.format(argv=argv, heavy=heavy)
+    result = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True, text=True, env=env, timeout=300, cwd=cwd,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    out = Path(argv[argv.index("--out") + 1])
+    summary = json.loads((out / "summary.json").read_text())
+    return result.stdout.splitlines()[-1], {
+        key: value for key, value in summary.items() if key not in ("timings", "peak_rss_mb")
+    }
+
+
 @pytest.mark.serial_only
 def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path):
     """The first run derives the scene's data (sympy) and meshes (gmsh), the next one reads
@@ -54,16 +71,10 @@ def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path):
     env.pop("PAREFG_KERNELS", None)
     imported, results = [], []
     for run in ("derived", "cached"):
-        out = tmp_path / run
-        argv = ["run", "square", "--quiet", "--out", str(out), *QUICK]
-        probe = PROBE.format(argv=argv, heavy=("gmsh", "numba", "sympy"))
-        result = subprocess.run(
-            [sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=300
-        )
-        assert result.returncode == 0, result.stderr
-        imported.append(result.stdout.splitlines()[-1])
-        summary = json.loads((out / "summary.json").read_text())
-        results.append({k: v for k, v in summary.items() if k not in ("timings", "peak_rss_mb")})
+        argv = ["run", "square", "--quiet", "--out", str(tmp_path / run), *QUICK]
+        heavy, summary = probe_run(argv, ("gmsh", "numba", "sympy"), env)
+        imported.append(heavy)
+        results.append(summary)
     assert imported == ["gmsh sympy", ""]
     assert results[0] == results[1]
 
@@ -91,15 +102,9 @@ def test_a_run_of_a_prebuilt_scene_imports_neither_sympy_nor_gmsh_and_writes_now
     for run, extra in (("prebuilt", {}), ("derived", {"PAREFG_CACHE": "0"})):
         out = tmp_path / f"run-{run}"
         argv = ["run", "square", "--quiet", "--out", str(out), "--set", "time.dt=0.25"]
-        probe = PROBE.format(argv=argv, heavy=("gmsh", "sympy"))
-        result = subprocess.run(
-            [sys.executable, "-c", probe],
-            capture_output=True, text=True, env={**env, **extra}, timeout=300, cwd=tmp_path,
-        )  # fmt: skip
-        assert result.returncode == 0, result.stderr
-        imported.append(result.stdout.splitlines()[-1])
-        summary = json.loads((out / "summary.json").read_text())
-        results.append({k: v for k, v in summary.items() if k not in ("timings", "peak_rss_mb")})
+        heavy, summary = probe_run(argv, ("gmsh", "sympy"), {**env, **extra}, cwd=tmp_path)
+        imported.append(heavy)
+        results.append(summary)
     assert imported == ["", "gmsh sympy"]
     assert results[0] == results[1]
     assert sorted((str(path), path.stat().st_mtime_ns) for path in prebuilt.rglob("*")) == before
