@@ -19,6 +19,7 @@ from parefg.discretization.assembly import interleaved
 from parefg.discretization.dirichlet import (
     COARSE_CONTACT_METHODS,
     DIRICHLET_METHODS,
+    HAT_CONTACT_METHODS,
     NITSCHE_CONTACT_METHODS,
     DirichletPart,
     local_operators,
@@ -55,12 +56,13 @@ class BoundaryOperators:
     ) -> PointSet:
         raise NotImplementedError  # the builder's: the PointSet of a quadrature
 
-    def _boundary_quadrature(self, part_ids: list[int], grouped=()):
+    def _boundary_quadrature(self, part_ids: list[int], grouped=(), hat_parts=()):
         """This rank's Gauss points on segments of the given parts, and their global rows.
 
         Segments of the parts in ``grouped`` are taken by coarse-trace groups
         (:func:`~parefg.discretization.coarse_trace.trace_groups`, numbered on the whole
-        part, as every rank holds the segments): a group belongs to the owner of its
+        part, as every rank holds the segments; of HAT_SEGMENTS segments on the parts in
+        ``hat_parts``, else CHUNK_SEGMENTS): a group belongs to the owner of its
         lowest segment, so its projection is local and does not depend on the partition,
         and its segments come together in chain order.  Returns (quadrature, rows,
         group, offset), the last two per point (group -1 on the other parts).
@@ -74,7 +76,10 @@ class BoundaryOperators:
         for part_id in grouped:
             on_part = np.flatnonzero(cloud.segment_part == part_id)
             part_group, offset[on_part] = coarse_trace.trace_groups(
-                cloud.coords, cloud.segments, on_part
+                cloud.coords,
+                cloud.segments,
+                on_part,
+                coarse_trace.HAT_SEGMENTS if part_id in hat_parts else coarse_trace.CHUNK_SEGMENTS,
             )
             group[on_part] = part_group + group.max() + 1
         owner = part.segment_owner.copy()
@@ -115,37 +120,47 @@ class BoundaryOperators:
                 dirichlet_local = dirichlet_local + local
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
-            nitsche_parts = self._nitsche_contact_parts()
-            coarse_parts = self._nitsche_contact_parts(coarse_only=True)
+            nitsche_parts = self._nitsche_contact_parts(NITSCHE_CONTACT_METHODS)
+            coarse_parts = self._nitsche_contact_parts(COARSE_CONTACT_METHODS)
+            hat_parts = self._nitsche_contact_parts(HAT_CONTACT_METHODS)
             quadrature, rows, group, offset = self._boundary_quadrature(
-                contact_parts, grouped=coarse_parts
+                contact_parts, grouped=coarse_parts + hat_parts, hat_parts=hat_parts
             )
+            part_of_point = cloud.segment_part[quadrature.cell]
+            on_hat = np.isin(part_of_point, hat_parts)
             on_contact = np.isin(cloud.segment_part, contact_parts)  # every rank's segments
             self.n_contact = (
                 int(np.count_nonzero(on_contact)) * self.scene.discretization.quadrature
             )
             shape = self._shape(quadrature.points, gradients=bool(nitsche_parts))
-            part_of_point = cloud.segment_part[quadrature.cell]
             extra = {}
             if nitsche_parts:
+                # the polynomial coarse trace projects the law's traction too (and makes
+                # gamma constant on a group); the hats project u and the gap only
+                polynomial_group = np.where(on_hat, -1, group)
                 projection = None
                 if coarse_parts:
                     projection = coarse_trace.projection(
-                        quadrature, cloud.coords, cloud.segments, group, offset
+                        quadrature, cloud.coords, cloud.segments, polynomial_group, offset
                     )
                 extra = self._nitsche_contact(
-                    quadrature, shape, part_of_point, nitsche_parts, group, projection
+                    quadrature, shape, part_of_point, nitsche_parts, polynomial_group, projection
                 )
+                if hat_parts:  # block-diagonal, on other points than the polynomial one
+                    hat_group = np.where(on_hat, group, -1)
+                    hats = coarse_trace.hat_projection(
+                        quadrature, cloud.coords, cloud.segments, hat_group, offset
+                    )
+                    extra["projection"] = hats if projection is None else projection @ hats
                 dirichlet_local = dirichlet_local - extra.pop("nitsche_matrix")
             with phase(self.timings, "assembly"):
                 contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows, **extra)
                 pattern = contact_pattern(shape, n, group)
         return boundary, parts, contact, dirichlet_local, pattern
 
-    def _nitsche_contact_parts(self, coarse_only: bool = False) -> list[int]:
-        """Part ids of the contact parts imposed by a Nitsche method (on the coarse trace)."""
+    def _nitsche_contact_parts(self, methods: tuple[str, ...]) -> list[int]:
+        """Part ids of the contact parts imposed by one of ``methods``."""
         cloud, scene = self.cloud, self.scene
-        methods = COARSE_CONTACT_METHODS if coarse_only else NITSCHE_CONTACT_METHODS
         return [
             cloud.part_names.index(name)
             for name, bc in scene.boundaries.items()

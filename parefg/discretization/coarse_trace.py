@@ -38,16 +38,24 @@ if TYPE_CHECKING:  # the scene schema reads dirichlet.py, which imports project_
 
 #: segments per group of the coarse trace (degree CHUNK_SEGMENTS - 1 on a full group)
 CHUNK_SEGMENTS = 4
+#: segments per group of the contact law's piecewise-linear space (:func:`hat_projection`):
+#: each group adds one condition at its ends, and P couples the nodes of its group
+HAT_SEGMENTS = 8
 #: a turn of more than this between consecutive segments is a corner (30 degrees)
 CORNER_COSINE = np.cos(np.radians(30.0))
 
 
-def trace_groups(coords: np.ndarray, segments: np.ndarray, segment_ids: np.ndarray):
+def trace_groups(
+    coords: np.ndarray,
+    segments: np.ndarray,
+    segment_ids: np.ndarray,
+    per_group: int = CHUNK_SEGMENTS,
+):
     """Group of each segment of ``segment_ids`` and its arc offset within the group.
 
     The segments are walked as chains (the end of one is the start of the next), cut at
     corners, and each straight run of n segments is split into max(1, round(n /
-    CHUNK_SEGMENTS)) groups of near-equal size.  Returns (group, offset), both
+    per_group)) groups of near-equal size.  Returns (group, offset), both
     (len(segment_ids),): group numbers from 0, rank-independent for the same input;
     offset the arc length from the group's start to the segment's first node.
     """
@@ -87,7 +95,7 @@ def trace_groups(coords: np.ndarray, segments: np.ndarray, segment_ids: np.ndarr
         runs.append(run)
     n_groups = 0
     for run in runs:
-        for chunk in np.array_split(run, max(1, round(len(run) / CHUNK_SEGMENTS))):
+        for chunk in np.array_split(run, max(1, round(len(run) / per_group))):
             group[chunk] = n_groups
             offset[chunk] = np.concatenate([[0.0], np.cumsum(length[chunk])[:-1]])
             n_groups += 1
@@ -152,3 +160,46 @@ def group_largest(values: np.ndarray, group: np.ndarray) -> np.ndarray:
     out = np.array(values, dtype=float)
     out[grouped] = largest[group[grouped]]
     return out
+
+
+def hat_projection(
+    quadrature: Quadrature,
+    coords: np.ndarray,
+    segments: np.ndarray,
+    group: np.ndarray,
+    offset: np.ndarray,
+) -> sp.csr_matrix:
+    """The weighted L2 projection onto continuous piecewise-linear functions, (n_points)^2.
+
+    On each group (:func:`trace_groups`, cut with :data:`HAT_SEGMENTS`) the hat functions of
+    its n_s + 1 vertices span the space: one coefficient per segment, as the polynomial
+    space of :func:`projection`, but each local to two segments, so that the edge of a
+    contact zone is resolved at the segments' scale.  ``group``, ``offset``: of each
+    point's segment; points of group -1 keep their values.  W-self-adjoint, as
+    :func:`projection`.
+    """
+    start = coords[segments[quadrature.cell, 0]]
+    length = np.hypot(*(coords[segments[quadrature.cell, 1]] - start).T)
+    along = np.hypot(*(quadrature.points - start).T) / length  # (n_points,) in [0, 1]
+    alone = np.flatnonzero(group < 0)
+    rows, columns, values = [alone], [alone], [np.ones(len(alone))]
+    by_group = np.argsort(group, kind="stable")
+    starts = np.flatnonzero(np.diff(group[by_group])) + 1
+    for points in np.split(by_group, starts):
+        if len(points) == 0 or group[points[0]] < 0:
+            continue
+        # the group's segments in arc order: a point lies between vertices k and k + 1
+        _, left = np.unique(offset[points], return_inverse=True)
+        hats = np.zeros((len(points), left.max() + 2))
+        hats[np.arange(len(points)), left] = 1 - along[points]
+        hats[np.arange(len(points)), left + 1] = along[points]
+        weights = quadrature.weights[points]
+        gram = hats.T @ (weights[:, None] * hats)
+        block = hats @ np.linalg.solve(gram, hats.T * weights)
+        rows.append(np.repeat(points, len(points)))
+        columns.append(np.tile(points, len(points)))
+        values.append(block.ravel())
+    n = len(quadrature.weights)
+    return sp.csr_matrix(
+        (np.concatenate(values), (np.concatenate(rows), np.concatenate(columns))), shape=(n, n)
+    )

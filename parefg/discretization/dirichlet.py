@@ -134,15 +134,17 @@ NITSCHE_SAFETY = 2.0
 #: ``[boundary.NAME] method`` of a contact part; the first is the default.  "nitsche" is
 #: Chouly & Hild's symmetric Nitsche contact (parefg.mechanics.contact), gamma = safety x
 #: the same coercivity bound: consistent, so no penalty error (m = 2 dynamic L2 rate 2.86
-#: against the penalty's 2.03, README Accuracy), its law at every Gauss point (also
-#: "nitsche-pointwise"); "nitsche-coarse" the law on the coarse trace's P u, flat in the
-#: safety as the Dirichlet parts' but coarser at a contact zone's edge (Hertz at h = 0.1:
-#: p0 0.83 % off against 0.19 %, README); "penalty" the paper's alpha_C (u_nu - s)^+.
-#: For both kinds "nitsche" is the recommended form: on the coarse trace for Dirichlet
-#: parts, pointwise for contact.
-CONTACT_METHODS = ("nitsche", "nitsche-pointwise", "nitsche-coarse", "penalty")
-NITSCHE_CONTACT_METHODS = ("nitsche", "nitsche-pointwise", "nitsche-coarse")
-COARSE_CONTACT_METHODS = ("nitsche-coarse",)
+#: against the penalty's 2.03, README Accuracy), with the law on the coarse trace as the
+#: Dirichlet parts' (P u, P sigma_nu, P s; also "nitsche-coarse"): flat in the safety,
+#: where the law at every Gauss point ("nitsche-pointwise") over-constrains the MLS
+#: trace as gamma grows.  "nitsche-hat" puts the law on P u with P the projection onto
+#: continuous piecewise-linear functions (coarse_trace.hat_projection): flat too and
+#: sharper at a contact zone's edge, but its traction is only O(h^2) there, which costs
+#: m = 3 its rates.  "penalty" is the paper's alpha_C (u_nu - s)^+.
+CONTACT_METHODS = ("nitsche", "nitsche-coarse", "nitsche-hat", "nitsche-pointwise", "penalty")
+NITSCHE_CONTACT_METHODS = CONTACT_METHODS[:-1]
+COARSE_CONTACT_METHODS = ("nitsche", "nitsche-coarse")
+HAT_CONTACT_METHODS = ("nitsche-hat",)
 DEFAULT_CONTACT_METHOD = CONTACT_METHODS[0]
 
 

@@ -47,10 +47,11 @@ def output_fields(sim, state) -> tuple[dict, dict]:
     if sim.law is not None and "contact" in wanted:
         law = sim.law
         un = law.kinematics(state.u)[0]  # Nitsche: u_nu - sigma_nu / gamma, its pressure's
+        pressure, friction = law.tractions(law.pressure(un), law.step_friction)
         values = {
             "gap": law.gap - law.normal_displacement(state.u),
-            "normal_pressure": law.pressure(un),
-            "tangential_traction": law.step_friction,
+            "normal_pressure": pressure,
+            "tangential_traction": friction,
             "status": law.step_status,
         }
         contact_fields = {name: values[name] for name in OUTPUT_FIELDS["contact"]}

@@ -43,6 +43,7 @@ class ContactFrame:
         self.normals = points.normals  # (n_c, 2)
         self.tangents = np.column_stack([-self.normals[:, 1], self.normals[:, 0]])  # (n_c, 2)
         self.part = points.part
+        self.projection = points.projection  # P on point fields, or None (pointwise law)
         # kron(S, I_2) of the scalar value operator: rows 2q, 2q + 1 = (u_x, u_y)(x_q)
         values = sp.kron(_scipy_from_petsc(points.values), sp.identity(2), format="csr")
         if points.projection is not None:  # Nitsche contact on the coarse trace: P u
@@ -116,6 +117,23 @@ class ContactFrame:
         if self.traction_op is None:
             return un
         return un + self.normal_traction(u) / self.gamma
+
+    def tractions(self, pressure, friction) -> tuple[np.ndarray, np.ndarray]:
+        """(normal, tangential) traction the body feels at the points.  Not collective.
+
+        A law on the projection P u (hat or coarse trace) applies B^T P^T W (p nu + f tau) =
+        B^T W P(p nu + f tau) (P is W-self-adjoint): the traction density is P of the law's
+        point values, smoother than they are (Hertz, h = 0.1: largest point value 1.36 p0
+        against 2.9 p0) and with the same resultant.  Without P, the law's values.
+        """
+        if self.projection is None:
+            return pressure, friction
+        vector = pressure[:, None] * self.normals + friction[:, None] * self.tangents
+        vector = self.projection @ vector
+        return (
+            np.einsum("ij,ij->i", vector, self.normals),
+            np.einsum("ij,ij->i", vector, self.tangents),
+        )
 
     def point_vector(self, normal: np.ndarray) -> PETSc.Vec:
         """The work vector at the points, holding (normal_q, 0) (overwritten by later calls)."""

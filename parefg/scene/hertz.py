@@ -182,14 +182,16 @@ class HertzMeasure:
     n_closed: int
 
 
-def contact_points(sim, u) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(x (n, 2), outward normals (n, 2), weights (n,), pressure (n,)) of all Gamma_C points,
-    on every rank.  Collective."""
+def contact_points(sim, u) -> tuple[np.ndarray, ...]:
+    """(x (n, 2), outward normals (n, 2), weights (n,), pressure (n,), closed (n,)) of all
+    Gamma_C points, on every rank: the traction the body feels (ContactFrame.tractions) and
+    where the law acts.  Collective."""
     law = sim.law
-    pressure = law.pressure(law.kinematics(u)[0])
-    local = (law.points, law.normals, law.weights, pressure)
+    point_pressure = law.pressure(law.kinematics(u)[0])
+    pressure = law.tractions(point_pressure, np.zeros_like(point_pressure))[0]
+    local = (law.points, law.normals, law.weights, pressure, point_pressure > 0)
     gathered = sim.comm.allgather(local)
-    return tuple(np.concatenate([part[k] for part in gathered]) for k in range(4))  # type: ignore[return-value]
+    return tuple(np.concatenate([part[k] for part in gathered]) for k in range(5))  # type: ignore[return-value]
 
 
 def stress_resultant(sim, u, band: tuple[float, float] = (0.3, 0.7)) -> float:
@@ -220,7 +222,7 @@ def measure(sim, u) -> HertzMeasure:
     """Contact resultants, half-widths and peak pressures of the solved state u.  Collective."""
     from scipy.optimize import least_squares
 
-    x, normals, weights, pressure = contact_points(sim, u)
+    x, normals, weights, pressure, closed = contact_points(sim, u)
     # the vertical traction per unit x: p ds (-nu_y) = p dx on the curve
     wy = weights * -normals[:, 1]
     load = float(np.dot(wy, pressure))
@@ -237,7 +239,6 @@ def measure(sim, u) -> HertzMeasure:
         return np.sqrt(wy) * (pressure - p0 * np.sqrt(np.maximum(1.0 - (xs / a) ** 2, 0.0)))
 
     fit = least_squares(residual, [p0_hertz, a_hertz], x_scale=[p0_hertz, a_hertz])
-    closed = pressure > 0
     return HertzMeasure(
         load=load,
         load_x=load_x,

@@ -94,8 +94,10 @@ def test_no_shape_arrays_or_scipy_twins_are_kept(warm, monkeypatch):
     disc = build_discretization(MPI.COMM_WORLD, scene(0.125))
     held = reachable(disc)
     assert not [obj for obj in held if isinstance(obj, ShapeValues)]
-    # the contact pattern, and the coarse traces' projections (boundary points only)
+    # the contact pattern, and the coarse traces' projections (boundary points only; the
+    # contact law's hat projection too)
     projections = [part.projection for part in disc.dirichlet_parts.values()]
+    projections.append(disc.contact.projection)
     expected = {id(disc.contact_pattern), *map(id, projections)}
     assert {id(obj) for obj in held if sp.issparse(obj)} == expected
     u = disc.create_vec()

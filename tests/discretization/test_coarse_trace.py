@@ -11,7 +11,9 @@ import pytest
 
 from parefg.discretization.coarse_trace import (
     CHUNK_SEGMENTS,
+    HAT_SEGMENTS,
     group_largest,
+    hat_projection,
     projection,
     trace_groups,
 )
@@ -101,6 +103,39 @@ def test_projection_keeps_the_coarse_polynomials_and_is_a_weighted_projection(or
     # a field oscillating point by point within each segment is mostly removed
     oscillation = np.tile([1.0, -1.0], len(arc))[: len(arc)] if order % 2 == 0 else None
     if oscillation is not None:
+        assert np.linalg.norm(p @ oscillation) < 0.5 * np.linalg.norm(oscillation)
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_hat_projection_keeps_continuous_piecewise_linear_fields_and_is_local(order):
+    """The contact law's space: hats on each group's vertices (groups of HAT_SEGMENTS)."""
+    coords, segments = _polygon(SQUARE, [17, 4, 3, 9])
+    ids = np.arange(len(segments))
+    group, offset = trace_groups(coords, segments, ids, HAT_SEGMENTS)
+    quadrature = segment_quadrature(coords, segments, order, segment_ids=ids)
+    point_group, point_offset = np.repeat(group, order), np.repeat(offset, order)
+    p = hat_projection(quadrature, coords, segments, point_group, point_offset).toarray()
+    w = np.diag(quadrature.weights)
+    np.testing.assert_allclose(p @ p, p, atol=1e-10)
+    np.testing.assert_allclose(w @ p, (w @ p).T, atol=1e-12)
+    # one coefficient per vertex of a group: segments + groups
+    assert np.linalg.matrix_rank(p) == len(segments) + len(np.unique(group))
+    # a continuous piecewise-linear field of arc length (a kink at every vertex) is kept
+    start = coords[segments[quadrature.cell, 0]]
+    arc = point_offset + np.linalg.norm(quadrature.points - start, axis=1)
+    field = np.zeros(len(arc))
+    for g in np.unique(group):
+        members = point_group == g
+        # random values at the segments' first vertices and past the last point
+        knots = np.append(np.unique(point_offset[members]), arc[members].max() + 1e-12)
+        values = np.random.default_rng(int(g)).normal(size=len(knots))
+        field[members] = np.interp(arc[members], knots, values)
+    np.testing.assert_allclose(p @ field, field, atol=1e-10 * np.abs(field).max())
+    # local: a group's points see only their group
+    assert np.all(p[np.not_equal.outer(point_group, point_group)] == 0.0)
+    # a field oscillating point by point within each segment is mostly removed
+    if order == 2:
+        oscillation = np.tile([1.0, -1.0], len(arc) // 2)
         assert np.linalg.norm(p @ oscillation) < 0.5 * np.linalg.norm(oscillation)
 
 
