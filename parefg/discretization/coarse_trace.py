@@ -118,6 +118,23 @@ def projection(
     """
     start = coords[segments[quadrature.cell, 0]]
     arc = offset + np.hypot(*(quadrature.points - start).T)  # along the group
+
+    def legendre(points: np.ndarray) -> np.ndarray:
+        """Legendre polynomials of degree < the group's segments, in [-1, 1] over its points."""
+        n_segments = len(np.unique(quadrature.cell[points]))
+        low, high = arc[points].min(), arc[points].max()
+        scaled = (2 * arc[points] - low - high) / max(high - low, np.finfo(float).tiny)
+        return np.polynomial.legendre.legvander(scaled, n_segments - 1)
+
+    return _projection_by_group(quadrature.weights, group, legendre)
+
+
+def _projection_by_group(weights: np.ndarray, group: np.ndarray, basis) -> sp.csr_matrix:
+    """The W-orthogonal projection onto span ``basis(points)`` on each group's points.
+
+    ``basis``: the point indices of one group -> their (points x functions) basis values.
+    Points of group -1 keep their values.
+    """
     alone = np.flatnonzero(group < 0)
     rows, columns, values = [alone], [alone], [np.ones(len(alone))]
     # the points of each group, in one sort (a rank without points of the part: empty P)
@@ -126,19 +143,13 @@ def projection(
     for points in np.split(by_group, starts):
         if len(points) == 0 or group[points[0]] < 0:
             continue
-        n_segments = len(np.unique(quadrature.cell[points]))
-        low, high = arc[points].min(), arc[points].max()
-        # Legendre in [-1, 1] over the group's points, orthonormalized in the weights
-        basis = np.polynomial.legendre.legvander(
-            (2 * arc[points] - low - high) / max(high - low, np.finfo(float).tiny), n_segments - 1
-        )
-        root = np.sqrt(quadrature.weights[points])
-        orthonormal, _ = np.linalg.qr(root[:, None] * basis)
+        root = np.sqrt(weights[points])
+        orthonormal, _ = np.linalg.qr(root[:, None] * basis(points))  # in the weights
         block = (orthonormal / root[:, None]) @ (orthonormal * root[:, None]).T
         rows.append(np.repeat(points, len(points)))
         columns.append(np.tile(points, len(points)))
         values.append(block.ravel())
-    n = len(quadrature.weights)
+    n = len(weights)
     return sp.csr_matrix(
         (np.concatenate(values), (np.concatenate(rows), np.concatenate(columns))), shape=(n, n)
     )
@@ -181,25 +192,13 @@ def hat_projection(
     start = coords[segments[quadrature.cell, 0]]
     length = np.hypot(*(coords[segments[quadrature.cell, 1]] - start).T)
     along = np.hypot(*(quadrature.points - start).T) / length  # (n_points,) in [0, 1]
-    alone = np.flatnonzero(group < 0)
-    rows, columns, values = [alone], [alone], [np.ones(len(alone))]
-    by_group = np.argsort(group, kind="stable")
-    starts = np.flatnonzero(np.diff(group[by_group])) + 1
-    for points in np.split(by_group, starts):
-        if len(points) == 0 or group[points[0]] < 0:
-            continue
-        # the group's segments in arc order: a point lies between vertices k and k + 1
-        _, left = np.unique(offset[points], return_inverse=True)
-        hats = np.zeros((len(points), left.max() + 2))
-        hats[np.arange(len(points)), left] = 1 - along[points]
-        hats[np.arange(len(points)), left + 1] = along[points]
-        weights = quadrature.weights[points]
-        gram = hats.T @ (weights[:, None] * hats)
-        block = hats @ np.linalg.solve(gram, hats.T * weights)
-        rows.append(np.repeat(points, len(points)))
-        columns.append(np.tile(points, len(points)))
-        values.append(block.ravel())
-    n = len(quadrature.weights)
-    return sp.csr_matrix(
-        (np.concatenate(values), (np.concatenate(rows), np.concatenate(columns))), shape=(n, n)
-    )
+
+    def hats(points: np.ndarray) -> np.ndarray:
+        """The group's hats at its points: a point lies between vertices k and k + 1."""
+        _, left = np.unique(offset[points], return_inverse=True)  # segments in arc order
+        values = np.zeros((len(points), left.max() + 2))
+        values[np.arange(len(points)), left] = 1 - along[points]
+        values[np.arange(len(points)), left + 1] = along[points]
+        return values
+
+    return _projection_by_group(quadrature.weights, group, hats)

@@ -78,28 +78,38 @@ def test_a_slight_bend_is_no_corner_and_an_open_chain_starts_at_its_end():
     assert np.all(np.diff(chain) >= 0)  # groups are contiguous along the chain
 
 
-@pytest.mark.parametrize("order", [2, 3, 5])
-def test_projection_keeps_the_coarse_polynomials_and_is_a_weighted_projection(order):
-    coords, segments = _polygon(SQUARE, [9, 4, 3, 6])
+def _projected_square(build, per_edge: list[int], order: int, per_group: int):
+    """P of ``build`` (projection, hat_projection) on the square's boundary, checked to be a
+    W-self-adjoint projection.  Returns (P dense, group per segment, group, offset,
+    quadrature, arc length in the group per point)."""
+    coords, segments = _polygon(SQUARE, per_edge)
     ids = np.arange(len(segments))
-    group, offset = trace_groups(coords, segments, ids)
+    group, offset = trace_groups(coords, segments, ids, per_group)
     quadrature = segment_quadrature(coords, segments, order, segment_ids=ids)
     point_group, point_offset = np.repeat(group, order), np.repeat(offset, order)
-    p = projection(quadrature, coords, segments, point_group, point_offset).toarray()
+    p = build(quadrature, coords, segments, point_group, point_offset).toarray()
     w = np.diag(quadrature.weights)
     np.testing.assert_allclose(p @ p, p, atol=1e-10)
     np.testing.assert_allclose(w @ p, (w @ p).T, atol=1e-12)
-    # a polynomial of the group's degree in arc length (each group its own) is kept
     start = coords[segments[quadrature.cell, 0]]
     arc = point_offset + np.linalg.norm(quadrature.points - start, axis=1)
+    return p, group, point_group, point_offset, quadrature, arc
+
+
+@pytest.mark.parametrize("order", [2, 3, 5])
+def test_projection_keeps_the_coarse_polynomials_and_is_a_weighted_projection(order):
+    p, group, point_group, _, quadrature, arc = _projected_square(
+        projection, [9, 4, 3, 6], order, CHUNK_SEGMENTS
+    )
+    # a polynomial of the group's degree in arc length (each group its own) is kept
     field = np.zeros(len(arc))
     for g in np.unique(group):
         members = point_group == g
         degree = len(np.unique(quadrature.cell[members])) - 1
         field[members] = np.polyval(np.arange(1.0, degree + 2), arc[members])
     np.testing.assert_allclose(p @ field, field, atol=1e-10 * np.abs(field).max())
-    # rank: one coefficient per segment
-    assert np.linalg.matrix_rank(p) == len(segments)
+    # rank: one coefficient per segment (9 + 4 + 3 + 6)
+    assert np.linalg.matrix_rank(p) == 22
     # a field oscillating point by point within each segment is mostly removed
     oscillation = np.tile([1.0, -1.0], len(arc))[: len(arc)] if order % 2 == 0 else None
     if oscillation is not None:
@@ -109,20 +119,12 @@ def test_projection_keeps_the_coarse_polynomials_and_is_a_weighted_projection(or
 @pytest.mark.parametrize("order", [2, 3])
 def test_hat_projection_keeps_continuous_piecewise_linear_fields_and_is_local(order):
     """The contact law's space: hats on each group's vertices (groups of HAT_SEGMENTS)."""
-    coords, segments = _polygon(SQUARE, [17, 4, 3, 9])
-    ids = np.arange(len(segments))
-    group, offset = trace_groups(coords, segments, ids, HAT_SEGMENTS)
-    quadrature = segment_quadrature(coords, segments, order, segment_ids=ids)
-    point_group, point_offset = np.repeat(group, order), np.repeat(offset, order)
-    p = hat_projection(quadrature, coords, segments, point_group, point_offset).toarray()
-    w = np.diag(quadrature.weights)
-    np.testing.assert_allclose(p @ p, p, atol=1e-10)
-    np.testing.assert_allclose(w @ p, (w @ p).T, atol=1e-12)
-    # one coefficient per vertex of a group: segments + groups
-    assert np.linalg.matrix_rank(p) == len(segments) + len(np.unique(group))
+    p, group, point_group, point_offset, _, arc = _projected_square(
+        hat_projection, [17, 4, 3, 9], order, HAT_SEGMENTS
+    )
+    # one coefficient per vertex of a group: segments (17 + 4 + 3 + 9) + groups
+    assert np.linalg.matrix_rank(p) == 33 + len(np.unique(group))
     # a continuous piecewise-linear field of arc length (a kink at every vertex) is kept
-    start = coords[segments[quadrature.cell, 0]]
-    arc = point_offset + np.linalg.norm(quadrature.points - start, axis=1)
     field = np.zeros(len(arc))
     for g in np.unique(group):
         members = point_group == g
