@@ -47,6 +47,8 @@ class BoundaryOperators:
     n_nodes: int
     n_dofs_local: int
     n_contact: int
+    node_range: tuple[int, int]
+    trace_blocks: list[np.ndarray]
 
     def _shape(self, points: np.ndarray, gradients: bool) -> ShapeValues:
         raise NotImplementedError  # the builder's: MLS at this rank's points
@@ -133,6 +135,7 @@ class BoundaryOperators:
                 int(np.count_nonzero(on_contact)) * self.scene.discretization.quadrature
             )
             shape = self._shape(quadrature.points, gradients=bool(nitsche_parts))
+            self._add_trace_blocks(shape, group)
             extra = {}
             if nitsche_parts:
                 # the polynomial coarse trace projects the law's traction too (and makes
@@ -261,6 +264,7 @@ class BoundaryOperators:
         projection = None
         if groups is not None:
             group, offset = groups
+            self._add_trace_blocks(shape, group)
             beta = coarse_trace.group_largest(beta, group)
             projection = coarse_trace.projection(
                 quadrature, self.cloud.coords, self.cloud.segments, group, offset
@@ -289,6 +293,18 @@ class BoundaryOperators:
                 projection=projection,
             )
         return part, local
+
+    def _add_trace_blocks(self, shape: ShapeValues, group: np.ndarray) -> None:
+        """Append the owned nodes that each coarse-trace group's points reach (group >= 0),
+        one block per group, to ``trace_blocks``.  Not collective."""
+        point, slot = np.nonzero(shape.mask)
+        grouped = group[point] >= 0
+        nodes = shape.neighbours[point[grouped], slot[grouped]]
+        start, stop = self.node_range
+        owned = (nodes >= start) & (nodes < stop)
+        pairs = np.unique(np.column_stack([group[point[grouped]][owned], nodes[owned]]), axis=0)
+        cuts = np.flatnonzero(np.diff(pairs[:, 0])) + 1
+        self.trace_blocks.extend(np.split(pairs[:, 1], cuts) if len(pairs) else [])
 
     def _nitsche_segments(self) -> np.ndarray:
         """Every segment (all ranks) of a part imposed by Nitsche's method (Dirichlet, contact)."""

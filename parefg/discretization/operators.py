@@ -58,6 +58,10 @@ class Discretization:
     timings: dict[str, float] = field(default_factory=dict)
     condition_range: tuple[float, float] = (1.0, 1.0)  # min, max MLS moment condition number
     symmetric: bool = True  # K's symmetry: False with VCI (Petrov-Galerkin test gradients)
+    # this rank's (owned) global node ids of each coarse-trace group of the Dirichlet and
+    # contact parts, the nodes its points reach: the iterative method's finest smoother
+    # solves them together (parefg.timestepping.linear_solver.configure_finest_blocks)
+    trace_blocks: list[np.ndarray] = field(default_factory=list)
 
     @property
     def n_dofs(self) -> int:
@@ -168,6 +172,7 @@ class _Builder(BoundaryOperators):
             region=self._region(support_radius),
         )
         self.conditions: list[np.ndarray] = []  # MLS condition numbers of every point set
+        self.trace_blocks: list[np.ndarray] = []  # owned nodes of each coarse-trace group
 
     def _region(self, support_radius: np.ndarray) -> np.ndarray:
         """(2, 2) the box where this rank evaluates MLS, as far as it is known in advance:
@@ -205,6 +210,7 @@ class _Builder(BoundaryOperators):
             n_contact=self.n_contact,
             timings=self.timings,
             symmetric=self.scene.discretization.integration != "vci",
+            trace_blocks=self.trace_blocks,
             condition_range=(
                 comm.allreduce(conditions.min(), op=MPI.MIN),
                 comm.allreduce(conditions.max(), op=MPI.MAX),

@@ -20,6 +20,7 @@ from parefg.timestepping.linear_solver import (
     SOLVER_METHODS,
     LinearStepSolver,
     configure_linear_solver,
+    set_up_factored,
 )
 from parefg.timestepping.schemes import State
 from parefg.timestepping.step_solver import ContactStepSolver
@@ -67,6 +68,7 @@ class InitialState:
             # default, CG with the iterative method; -mass_ksp_type/-mass_pc_type override
             configure_linear_solver(ksp)
             set_from_options(ksp, "mass_", SOLVER_METHODS[self.scene.solver.method].mass)
+            set_up_factored(ksp)
             self._mass_ksp = ksp
         self._mass_ksp.solve(rhs, out)
         if self._mass_ksp.getConvergedReason() < 0:
@@ -139,11 +141,12 @@ class InitialState:
         operator.setNearNullSpace(self._rigid_body_modes(operator))
         solver: LinearStepSolver | ContactStepSolver
         method, degree = self.scene.solver.method, self.scene.discretization.degree
+        blocks = self.disc.trace_blocks
         if self.law is None:
-            solver = LinearStepSolver(self.comm, operator, method, symmetric, degree)
+            solver = LinearStepSolver(self.comm, operator, method, symmetric, degree, blocks)
         else:  # the bound is still 0
             solver = ContactStepSolver(
-                self.comm, operator, self.law, method, symmetric, degree=degree
+                self.comm, operator, self.law, method, symmetric, degree=degree, trace_blocks=blocks
             )
         try:
             if self.law is None:

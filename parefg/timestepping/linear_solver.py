@@ -15,7 +15,9 @@ defaults while each KSP reads its options, so any -ksp_/-pc_ option still wins.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from petsc4py import PETSc
@@ -39,7 +41,9 @@ class SolverMethod:
     ``mass`` those of the mass KSP (read with prefix ``mass_``), both without the prefix.
     ``scaled_tolerance``: the step KSP stops at KSP_TOLERANCE_FRACTION of the step
     tolerance, unless -ksp_atol is given.  ``finest_schwarz``: the MLS degrees whose step
-    preconditioner (GAMG) gets :func:`configure_finest_schwarz` after each set-up.
+    preconditioner (GAMG) gets :func:`configure_finest_schwarz` after each set-up;
+    ``finest_blocks``: those whose GAMG's finest level smooths the coarse-trace groups'
+    nodes by blocks (:func:`configure_finest_blocks`).
     """
 
     name: str
@@ -47,10 +51,23 @@ class SolverMethod:
     mass: dict[str, str] = field(default_factory=dict)
     scaled_tolerance: bool = False
     finest_schwarz: tuple[int, ...] = ()
+    finest_blocks: tuple[int, ...] = ()
 
-    def wants_finest_schwarz(self, degree: int | None) -> bool:
-        """Whether the step preconditioner's finest level is made overlapping Schwarz."""
-        return degree in self.finest_schwarz
+    def finest_level(self, degree: int | None, trace_blocks=None) -> FinestLevel | None:
+        """What the step preconditioner's finest level becomes after each set-up, or None.
+
+        ``trace_blocks``: the discretization's (``Discretization.trace_blocks``), used by
+        :func:`configure_finest_blocks`.
+        """
+        if degree in self.finest_schwarz:
+            return configure_finest_schwarz
+        if degree in self.finest_blocks and trace_blocks is not None:
+            return partial(configure_finest_blocks, blocks=trace_blocks)
+        return None
+
+
+#: configures a set-up GAMG's finest level (configure_finest_schwarz, ..._blocks)
+FinestLevel = Callable[[PETSc.PC], None]
 
 
 # Measured (square, step Jacobian, CG to 1e-8; scripts/bench/bench_iterative.py): a
@@ -178,12 +195,95 @@ def schwarz_blocks(matrix: PETSc.Mat, n_blocks: int) -> list[PETSc.IS] | None:
     return blocks
 
 
-def set_up_step_ksp(ksp: PETSc.KSP, finest_schwarz: bool) -> None:
-    """Set the step KSP up for its current operators, then (``finest_schwarz``) its GAMG's
-    finest level (:func:`configure_finest_schwarz`).  Collective."""
+def configure_finest_blocks(pc: PETSc.PC, blocks: list[np.ndarray]) -> None:
+    """After GAMG ``pc`` was set up: its finest smoother becomes Chebyshev on Jacobi plus
+    exact solves on ``blocks`` (additive; this rank's global node ids of each coarse-trace
+    group, :attr:`Discretization.trace_blocks`).  Collective.
+
+    Why: a Nitsche part on the coarse trace constrains only P u, so a nodal checkerboard
+    at its edge has little energy while the diagonal keeps the whole beta; Jacobi cannot
+    smooth it and aggregation cannot represent it, and GAMG's CG counts grew with 1/h
+    (m = 2: 26, 32, 40, 46 at h = 1/16 ... 1/128, CG to 1e-8 on the step Jacobian).  The
+    group's nodes solved together remove it: 21, 21, 21, 22, in less time (0.29 s
+    against 0.70 s at 1/128), m = 1 alike (README, Iterative solver).  A no-op for another
+    PC, a GAMG of one level, or a finest level already done.
+    """
+    if pc.getType() != PETSc.PC.Type.GAMG or pc.getMGLevels() < 2:
+        return
+    smoother = pc.getMGSmoother(pc.getMGLevels() - 1)
+    if smoother.getPC().getType() == PETSc.PC.Type.COMPOSITE:
+        return
+    steps = smoother.getTolerances()[3]
+    smoother.setType(PETSc.KSP.Type.RICHARDSON)  # Chebyshev estimates its bounds anew
+    smoother.setType(PETSc.KSP.Type.CHEBYSHEV)
+    smoother.setTolerances(max_it=steps)
+    composite = smoother.getPC()
+    composite.setType(PETSc.PC.Type.COMPOSITE)
+    composite.setCompositeType(PETSc.PC.CompositeType.ADDITIVE)
+    composite.addCompositePCType(PETSc.PC.Type.JACOBI)
+    composite.addCompositePCType(PETSc.PC.Type.ASM)
+    schwarz = composite.getCompositePC(1)
+    sets = [
+        PETSc.IS().createGeneral(
+            (2 * nodes[:, None] + np.arange(2)).ravel().astype(PETSc.IntType), PETSc.COMM_SELF
+        )
+        for nodes in blocks
+    ]
+    schwarz.setASMLocalSubdomains(len(sets), sets, sets)
+    schwarz.setASMOverlap(0)
+    schwarz.setASMType(PETSc.PC.ASMType.BASIC)  # symmetric, for CG
+    smoother.setUp()
+    for block in schwarz.getASMSubKSP():
+        block.setType(PETSc.KSP.Type.PREONLY)
+        block.getPC().setType(PETSc.PC.Type.LU)
+    smoother.setUp()
+
+
+def set_up_step_ksp(ksp: PETSc.KSP, finest: FinestLevel | None) -> None:
+    """Set the step KSP up for its current operators (:func:`set_up_factored`), then
+    (``finest``, from :meth:`SolverMethod.finest_level`) its GAMG's finest level.
+    Collective."""
+    set_up_factored(ksp)
+    if finest is not None:
+        finest(ksp.getPC())
+
+
+# MUMPS INFOG(1) when the workspace its analysis estimated was too small (-8, -9): its
+# parallel orderings can need more than the default relaxation ICNTL(14) = 20 %.  Measured:
+# the mass matrix at m = 2, support 2.4, h = 1/64 on 2 ranks (Cholesky, AMF ordering)
+# failed with INFOG(1) = -9 and factors with 30 %; a run pays the larger workspace only
+# where the estimate was short.
+SHORT_WORKSPACE = (-8, -9)
+WORKSPACE_RETRIES = 3
+
+
+def set_up_factored(ksp: PETSc.KSP) -> None:
+    """``ksp.setUp()``; a MUMPS factorization short of workspace is redone with ICNTL(14)
+    doubled (up to WORKSPACE_RETRIES times; the option -<prefix>mat_mumps_icntl_14 keeps
+    the value for the KSP's later factorizations).  Collective."""
     ksp.setUp()
-    if finest_schwarz:
-        configure_finest_schwarz(ksp.getPC())
+    for _ in range(WORKSPACE_RETRIES):
+        if not _relaxed_workspace(ksp):
+            return
+        ksp.setUp()
+
+
+def _relaxed_workspace(ksp: PETSc.KSP) -> bool:
+    """If the KSP's MUMPS factorization failed for want of workspace: ICNTL(14) doubled in
+    the options, the PC reset to be set up again; whether it was.  Collective (INFOG is
+    the same on every rank)."""
+    pc = ksp.getPC()
+    if pc.getType() not in EXACT_FACTORIZATIONS or pc.getFactorSolverType() != "mumps":
+        return False
+    factor = pc.getFactorMatrix()
+    if factor.getMumpsInfog(1) not in SHORT_WORKSPACE:
+        return False
+    relaxation = factor.getMumpsIcntl(14)
+    PETSc.Options().setValue(f"{ksp.getOptionsPrefix() or ''}mat_mumps_icntl_14", 2 * relaxation)
+    operators = ksp.getOperators()
+    pc.reset()  # drops the factor and the operators: set both again
+    ksp.setOperators(*operators)
+    return True
 
 
 # The mass matrix is SPD with no near-null space: CG + Jacobi.  Measured (true residual
@@ -201,7 +301,12 @@ _MASS = {
 SOLVER_METHODS = {
     "direct": SolverMethod("direct"),
     "iterative": SolverMethod(
-        "iterative", step=_AMG, mass=_MASS, scaled_tolerance=True, finest_schwarz=(3,)
+        "iterative",
+        step=_AMG,
+        mass=_MASS,
+        scaled_tolerance=True,
+        finest_schwarz=(3,),
+        finest_blocks=(1, 2),
     ),
 }
 DEFAULT_SOLVER_METHOD = "direct"
@@ -355,10 +460,12 @@ class LinearStepSolver:
         method: str = DEFAULT_SOLVER_METHOD,
         symmetric: bool = True,
         degree: int | None = None,
+        trace_blocks=None,
     ):
-        """``degree``: the MLS degree, whose preconditioner the method may adapt."""
+        """``degree``: the MLS degree, whose preconditioner the method may adapt, with the
+        discretization's ``trace_blocks`` (:meth:`SolverMethod.finest_level`)."""
         self.a_const = a_const
-        self.finest_schwarz = SOLVER_METHODS[method].wants_finest_schwarz(degree)
+        self.finest = SOLVER_METHODS[method].finest_level(degree, trace_blocks)
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setOperators(a_const)
         configure_linear_solver(self.ksp, symmetric)
@@ -380,7 +487,7 @@ class LinearStepSolver:
     def solve(self, b: PETSc.Vec, u: PETSc.Vec, t: float) -> tuple[int, int]:
         """Solve A u = b to the step tolerance from the guess u (overwritten).  Collective."""
         if self.factorizations == 0:
-            set_up_step_ksp(self.ksp, self.finest_schwarz)
+            set_up_step_ksp(self.ksp, self.finest)
             self.factorizations = 1
         self.tolerance = max(self.atol, self.rtol * step_scale(self.a_const, b, u, self._residual))
         if self.scaled_tolerance:

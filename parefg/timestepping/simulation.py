@@ -72,12 +72,15 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
             self.solver: LinearStepSolver | ContactStepSolver
             method, symmetric = scene.solver.method, disc.symmetric
             degree = scene.discretization.degree
+            blocks = disc.trace_blocks
             if self.law is None:
-                self.solver = LinearStepSolver(comm, self.a_const, method, symmetric, degree)
+                self.solver = LinearStepSolver(
+                    comm, self.a_const, method, symmetric, degree, blocks
+                )
             else:
                 shared = self._shared_rows(self.a_const)
                 self.solver = _contact_solver(
-                    comm, self.a_const, self.law, method, symmetric, shared, degree
+                    comm, self.a_const, self.law, method, symmetric, shared, degree, blocks
                 )
                 if shared is not None:  # A_const lives on in the Jacobian's storage
                     self.a_const.destroy()
@@ -378,8 +381,15 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
 
 
 def _contact_solver(
-    comm, a_const: PETSc.Mat, law: ContactLaw, method: str, symmetric: bool, shared_rows, degree
+    comm,
+    a_const: PETSc.Mat,
+    law: ContactLaw,
+    method: str,
+    symmetric: bool,
+    shared_rows,
+    degree,
+    trace_blocks,
 ) -> ContactStepSolver:
     """The Newton step solver, with the Coulomb fixed point around it when a part needs it."""
     solver = CoulombStepSolver if law.has_coulomb else ContactStepSolver
-    return solver(comm, a_const, law, method, symmetric, shared_rows, degree)
+    return solver(comm, a_const, law, method, symmetric, shared_rows, degree, trace_blocks)

@@ -109,14 +109,16 @@ class ContactStepSolver:
         symmetric: bool = True,
         shared_rows: np.ndarray | None = None,
         degree: int | None = None,
+        trace_blocks=None,
     ):
-        """``degree``: the MLS degree, whose preconditioner the method may adapt.
+        """``degree``: the MLS degree, whose preconditioner the method may adapt, with the
+        discretization's ``trace_blocks`` (:meth:`SolverMethod.finest_level`).
         ``shared_rows``: the local Gamma_C rows, to keep A_const in the Jacobian's
         storage (:class:`~parefg.timestepping.shared_jacobian.SharedConstant`; the
         caller then uses ``self.a_const``, not the matrix it gave); None: J is a copy."""
         self.comm, self.law = comm, law
         self.method = SOLVER_METHODS[method]
-        self._finest_schwarz = self.method.wants_finest_schwarz(degree)
+        self._finest = self.method.finest_level(degree, trace_blocks)
         self.symmetric = symmetric  # A_const's symmetry (False with VCI): the factorization
         self.a_const: PETSc.Mat | SharedConstant
         if shared_rows is None:
@@ -234,9 +236,9 @@ class ContactStepSolver:
             add_owned_rows(self.jacobian, contact_rows)
         self._signature = None if varying else active
         self.jacobian_builds += 1
-        if self._finest_schwarz:  # GAMG is built for the new matrix now, then its finest level
+        if self._finest:  # GAMG is built for the new matrix now, then its finest level
             snes.getKSP().setOperators(jacobian, preconditioner)
-            set_up_step_ksp(snes.getKSP(), finest_schwarz=True)
+            set_up_step_ksp(snes.getKSP(), self._finest)
 
     # -- the VI-aware line search ---------------------------------------------
     def _exact_line_search(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:

@@ -50,16 +50,14 @@ def _run(overrides: list[str], steps: int):
     return sim, errors, sim.timings["solve"]
 
 
-def _cg_iterations(
-    matrix: PETSc.Mat, options: dict[str, str], finest_schwarz: bool = False
-) -> tuple[int, int]:
+def _cg_iterations(matrix: PETSc.Mat, options: dict[str, str], finest=None) -> tuple[int, int]:
     """CG iterations to 1e-8 on ``matrix`` for a fixed right-hand side (-1: no convergence
-    in MAX_IT); levels (GAMG).  ``finest_schwarz``: GAMG's finest level as the method
-    makes it (set_up_step_ksp)."""
+    in MAX_IT); levels (GAMG).  ``finest``: GAMG's finest level as the method makes it
+    (SolverMethod.finest_level, set_up_step_ksp)."""
     ksp = PETSc.KSP().create(COMM)
     ksp.setOperators(matrix)
     set_from_options(ksp, "bench_", {**options, "ksp_rtol": "1e-8", "ksp_max_it": str(MAX_IT)})
-    set_up_step_ksp(ksp, finest_schwarz)
+    set_up_step_ksp(ksp, finest)
     b = matrix.createVecLeft()
     start, stop = b.getOwnershipRange()
     b.setArray(np.cos(np.arange(start, stop) * 0.7) + 1.0)  # the same for every rank count
@@ -95,10 +93,11 @@ def _case(setting: str, degree: int, n: int, args) -> dict | None:
     per_step = [r["linear_iterations"] for r in iterative.history]
     row.update(cg_per_step_median=float(np.median(per_step)), cg_per_step_max=max(per_step))
     jacobian = iterative.solver.jacobian
-    # the method's own preconditioner for this degree (GAMG; its finest level Schwarz at m = 3)
+    # the method's own preconditioner for this degree (GAMG; its finest level Schwarz at
+    # m = 3, block-smoothing the coarse-trace groups at m = 1, 2)
     method = SOLVER_METHODS["iterative"]
-    own, schwarz = method.step, method.wants_finest_schwarz(degree)
-    row["method"], row["method_levels"] = _cg_iterations(jacobian, own, schwarz)
+    finest = method.finest_level(degree, iterative.disc.trace_blocks)
+    row["method"], row["method_levels"] = _cg_iterations(jacobian, method.step, finest)
     for name in filter(None, args.preconditioners.split(",")):
         row[name], _ = _cg_iterations(jacobian, PRECONDITIONERS[name])
     for key in ("l2_rel", "h1_rel"):

@@ -64,3 +64,21 @@ def test_cg_gamg_reproduces_the_direct_solver(gamg_options):
     for key in ("l2_rel", "h1_rel"):
         assert errors_iterative[key] == pytest.approx(errors_direct[key], rel=1e-6)
     assert np.isfinite(errors_iterative["h1_rel"])
+
+
+def test_a_mumps_factorization_short_of_workspace_is_redone_with_more():
+    """The mass matrix at m = 2, support 2.4, h = 1/64: on 2 ranks MUMPS's Cholesky (AMF
+    ordering) ran out of the workspace its analysis estimated (INFOG(1) = -9 with the
+    default ICNTL(14) = 20) and the run failed with "mass-matrix solve failed: KSP reason
+    -11"; set_up_factored redoes it with ICNTL(14) doubled.  On 1 rank the first
+    factorization succeeds.  Both: the initial projection succeeds and M u_0 = the
+    projection's right-hand side."""
+    sim = _simulation(
+        ["discretization.h=0.015625", "discretization.degree=2", "discretization.support=2.4"]
+        + ["time.T=0.05", 'initial.u=["0.01 * x * y", "0.0"]']
+    )
+    state = sim.start()  # the u_0, v_0 and a_0 projections: mass solves
+    assert state.u.norm() > 0
+    ksp = sim._mass_ksp
+    assert ksp.getConvergedReason() > 0
+    assert ksp.getPC().getFactorMatrix().getMumpsInfog(1) == 0
