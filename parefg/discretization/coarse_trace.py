@@ -21,9 +21,10 @@ Nitsche at safety 2, within 1.01x from safety 1.1 to 2e4.
 beta is constant on a group (its segments' largest bound), which makes P and beta commute:
 the load L = beta P V - P T reproduces the form's data terms.  Groups never cross a corner
 of the boundary (where the traction jumps), a part or a rank: a group is owned by the rank
-of its lowest segment.  Dirichlet parts use it by default ("nitsche"); contact parts on
-request ("nitsche-coarse": the law on P u, which resolves a contact zone's edge less well,
-README).  Nothing here is collective.
+of its lowest segment.  Dirichlet and contact parts use it by default ("nitsche"; for
+contact the law on P u, P sigma_nu and P s, and the body feels the traction P(p nu)).
+Contact parts may take :func:`hat_projection` instead ("nitsche-hat").  Nothing here is
+collective.
 """
 
 from __future__ import annotations
