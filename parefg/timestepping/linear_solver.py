@@ -223,6 +223,8 @@ def configure_finest_blocks(pc: PETSc.PC, blocks: list[np.ndarray]) -> None:
     composite.addCompositePCType(PETSc.PC.Type.JACOBI)
     composite.addCompositePCType(PETSc.PC.Type.ASM)
     schwarz = composite.getCompositePC(1)
+    if not blocks:  # PCASM wants a block on every rank: a rank off the parts, its first node
+        blocks = [np.array([smoother.getOperators()[1].getOwnershipRange()[0] // 2])]
     sets = [
         PETSc.IS().createGeneral(
             (2 * nodes[:, None] + np.arange(2)).ravel().astype(PETSc.IntType), PETSc.COMM_SELF

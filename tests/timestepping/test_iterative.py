@@ -15,7 +15,12 @@ from parefg.geometry.partition import bisection_parts
 from parefg.parallel import set_from_options
 from parefg.run import prepare
 from parefg.scene.loader import load_scene
-from parefg.timestepping.linear_solver import SOLVER_METHODS, schwarz_blocks, set_up_step_ksp
+from parefg.timestepping.linear_solver import (
+    SOLVER_METHODS,
+    configure_finest_blocks,
+    schwarz_blocks,
+    set_up_step_ksp,
+)
 from parefg.timestepping.loop import time_loop
 
 COARSE = ["discretization.h=0.125", "discretization.degree=2", "time.T=0.1"]
@@ -155,6 +160,25 @@ def test_coarse_trace_groups_smoothed_together_keep_the_counts_flat_in_h(degree)
     counts, finest = zip(*(_jacobian_cg(n, degree) for n in (16, 32, 64)), strict=True)
     assert set(finest) == {"composite"}, finest
     assert max(counts) <= min(counts[0], 30) + 3, counts
+
+
+def test_a_rank_without_coarse_trace_groups_still_smooths_by_blocks():
+    """PCASM needs a block on every rank; a rank whose part touches no Nitsche boundary
+    has none (5 ranks on the square, h = 1/16: "Each process must have 1 or more blocks"
+    stopped the run).  Without any block the smoother takes the rank's first node."""
+    sim = prepare(MPI.COMM_WORLD, "square", [*COARSE, "solver.method=iterative"])
+    state = sim.start()
+    state = sim.step(state, 1)
+    jacobian = sim.solver.jacobian
+    ksp = PETSc.KSP().create(MPI.COMM_WORLD)
+    ksp.setOperators(jacobian)
+    method = SOLVER_METHODS["iterative"]
+    set_from_options(ksp, "test_", {**method.step, "ksp_rtol": "1e-8", "ksp_max_it": "1000"})
+    set_up_step_ksp(ksp, lambda pc: configure_finest_blocks(pc, []))
+    b = jacobian.createVecLeft()
+    b.set(1.0)
+    ksp.solve(b, jacobian.createVecRight())
+    assert ksp.getConvergedReason() > 0, ksp.getConvergedReason()
 
 
 DEGREE_3 = ["discretization.degree=3", "time.T=0.1", "solver.method=iterative"]
