@@ -257,12 +257,14 @@ def set_up_step_ksp(ksp: PETSc.KSP, finest: FinestLevel | None) -> None:
 # where the estimate was short.
 SHORT_WORKSPACE = (-8, -9)
 WORKSPACE_RETRIES = 3
+DEFAULT_RELAXATION = 20  # MUMPS's ICNTL(14), in percent
 
 
 def set_up_factored(ksp: PETSc.KSP) -> None:
     """``ksp.setUp()``; a MUMPS factorization short of workspace is redone with ICNTL(14)
-    doubled (up to WORKSPACE_RETRIES times; the option -<prefix>mat_mumps_icntl_14 keeps
-    the value for the KSP's later factorizations).  Collective."""
+    doubled (at least DEFAULT_RELAXATION; up to WORKSPACE_RETRIES times; the option
+    -<prefix>mat_mumps_icntl_14 keeps the value for the KSP's later factorizations).
+    Collective."""
     ksp.setUp()
     for _ in range(WORKSPACE_RETRIES):
         if not _relaxed_workspace(ksp):
@@ -280,8 +282,8 @@ def _relaxed_workspace(ksp: PETSc.KSP) -> bool:
     factor = pc.getFactorMatrix()
     if factor.getMumpsInfog(1) not in SHORT_WORKSPACE:
         return False
-    relaxation = factor.getMumpsIcntl(14)
-    PETSc.Options().setValue(f"{ksp.getOptionsPrefix() or ''}mat_mumps_icntl_14", 2 * relaxation)
+    relaxation = max(2 * factor.getMumpsIcntl(14), DEFAULT_RELAXATION)  # 0 doubled stays 0
+    PETSc.Options().setValue(f"{ksp.getOptionsPrefix() or ''}mat_mumps_icntl_14", relaxation)
     operators = ksp.getOperators()
     pc.reset()  # drops the factor and the operators: set both again
     ksp.setOperators(*operators)

@@ -236,9 +236,10 @@ class ContactStepSolver:
             add_owned_rows(self.jacobian, contact_rows)
         self._signature = None if varying else active
         self.jacobian_builds += 1
-        if self._finest:  # GAMG is built for the new matrix now, then its finest level
-            snes.getKSP().setOperators(jacobian, preconditioner)
-            set_up_step_ksp(snes.getKSP(), self._finest)
+        # set up now, not in SNES's linear solve: a factorization short of workspace is
+        # redone (set_up_factored), and GAMG's finest level is made for the new matrix
+        snes.getKSP().setOperators(jacobian, preconditioner)
+        set_up_step_ksp(snes.getKSP(), self._finest)
 
     # -- the VI-aware line search ---------------------------------------------
     def _exact_line_search(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:

@@ -82,3 +82,20 @@ def test_a_mumps_factorization_short_of_workspace_is_redone_with_more():
     ksp = sim._mass_ksp
     assert ksp.getConvergedReason() > 0
     assert ksp.getPC().getFactorMatrix().getMumpsInfog(1) == 0
+
+
+def test_a_contact_step_factorization_short_of_workspace_is_redone():
+    """The contact steps factor their Jacobian inside SNES: with MUMPS's workspace
+    relaxation ICNTL(14) = 0, a step's Cholesky on 2 ranks ran short (INFOG(1) = -9) and the
+    run failed ("Newton failed at t = 0.05: ... DIVERGED_PCSETUP_FAILED").  The Jacobian
+    callback sets the KSP up itself (set_up_factored), which redoes it with more.  On 1 rank
+    the first factorization succeeds."""
+    options = PETSc.Options()
+    try:
+        options.setValue("mat_mumps_icntl_14", 0)
+        sim = _simulation(["discretization.h=0.03125", "time.T=0.1"])
+        state = time_loop(sim, sim.start(), 1, [])
+        assert sim.history[-1]["active_contact_points"] > 0
+        assert np.isfinite(state.u.norm())
+    finally:
+        options.delValue("mat_mumps_icntl_14")
