@@ -297,14 +297,10 @@ class BoundaryOperators:
     def _add_trace_blocks(self, shape: ShapeValues, group: np.ndarray) -> None:
         """Append the owned nodes that each coarse-trace group's points reach (group >= 0),
         one block per group, to ``trace_blocks``.  Not collective."""
-        point, slot = np.nonzero(shape.mask)
-        grouped = group[point] >= 0
-        nodes = shape.neighbours[point[grouped], slot[grouped]]
         start, stop = self.node_range
-        owned = (nodes >= start) & (nodes < stop)
-        pairs = np.unique(np.column_stack([group[point[grouped]][owned], nodes[owned]]), axis=0)
-        cuts = np.flatnonzero(np.diff(pairs[:, 0])) + 1
-        self.trace_blocks.extend(np.split(pairs[:, 1], cuts) if len(pairs) else [])
+        owned = reached_nodes(shape, group, self.n_nodes)[:, start:stop].tocsr()
+        blocks = np.split(owned.indices + start, owned.indptr[1:-1])  # one per group number
+        self.trace_blocks.extend(block for block in blocks if len(block))  # others' are empty
 
     def _nitsche_segments(self) -> np.ndarray:
         """Every segment (all ranks) of a part imposed by Nitsche's method (Dirichlet, contact)."""
@@ -328,11 +324,22 @@ def contact_pattern(shape: ShapeValues, n_nodes: int, group: np.ndarray) -> sp.c
     """
     row_of_point = np.where(group >= 0, group, group.max(initial=-1) + 1 + np.arange(len(group)))
     _, row_of_point = np.unique(row_of_point, return_inverse=True)
+    incidence = reached_nodes(shape, row_of_point, n_nodes)
+    coupled = (incidence.T @ incidence).tocsr()  # counts >= 1: no zero is dropped
+    coupled.sort_indices()
+    return interleaved(coupled.indptr, coupled.indices, np.zeros((coupled.nnz, 2, 2)))
+
+
+def reached_nodes(shape: ShapeValues, row_of_point: np.ndarray, n_nodes: int) -> sp.csr_matrix:
+    """(rows x n_nodes) incidence: the nodes the points of each row reach (their MLS
+    neighbours), sorted, as counts >= 1; rows 0 ... row_of_point.max(), points of row -1
+    left out.  Not collective."""
     point, slot = np.nonzero(shape.mask)
+    kept = row_of_point[point] >= 0
+    point, slot = point[kept], slot[kept]
     incidence = sp.csr_matrix(
         (np.ones(len(point)), (row_of_point[point], shape.neighbours[point, slot])),
         shape=(row_of_point.max(initial=-1) + 1, n_nodes),
     )
-    coupled = (incidence.T @ incidence).tocsr()  # counts >= 1: no zero is dropped
-    coupled.sort_indices()
-    return interleaved(coupled.indptr, coupled.indices, np.zeros((coupled.nnz, 2, 2)))
+    incidence.sum_duplicates()  # sorted indices, one entry per node
+    return incidence

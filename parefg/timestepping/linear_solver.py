@@ -151,12 +151,9 @@ def configure_finest_schwarz(pc: PETSc.PC) -> None:
     prefix becomes -mg_finest_: -mg_levels_ options no longer reach that level.  A GAMG
     of one level (a tiny matrix) has no smoother to replace: it is left as it is.
     """
-    if pc.getType() != PETSc.PC.Type.GAMG or pc.getMGLevels() < 2:
+    smoother = _finest_smoother(pc, PETSc.PC.Type.ASM)
+    if smoother is None:
         return
-    smoother = pc.getMGSmoother(pc.getMGLevels() - 1)
-    if smoother.getPC().getType() == PETSc.PC.Type.ASM:
-        return
-    smoother.setType(PETSc.KSP.Type.RICHARDSON)
     prefix = (pc.getOptionsPrefix() or "") + FINEST_PREFIX
     smoother.setOptionsPrefix(prefix)
     rows = smoother.getOperators()[1].getLocalSize()[0]
@@ -195,6 +192,20 @@ def schwarz_blocks(matrix: PETSc.Mat, n_blocks: int) -> list[PETSc.IS] | None:
     return blocks
 
 
+def _finest_smoother(pc: PETSc.PC, configured: str) -> PETSc.KSP | None:
+    """The finest-level smoother of a set-up GAMG ``pc``, renewed as Richardson (so that a
+    Chebyshev made of it again estimates its bounds for the new PC instead of keeping
+    Jacobi's); None for another PC, a GAMG of one level, or a smoother whose PC is already
+    of type ``configured`` (the same set-up, done).  Not collective."""
+    if pc.getType() != PETSc.PC.Type.GAMG or pc.getMGLevels() < 2:
+        return None
+    smoother = pc.getMGSmoother(pc.getMGLevels() - 1)
+    if smoother.getPC().getType() == configured:
+        return None
+    smoother.setType(PETSc.KSP.Type.RICHARDSON)
+    return smoother
+
+
 def configure_finest_blocks(pc: PETSc.PC, blocks: list[np.ndarray]) -> None:
     """After GAMG ``pc`` was set up: its finest smoother becomes Chebyshev on Jacobi plus
     exact solves on ``blocks`` (additive; this rank's global node ids of each coarse-trace
@@ -208,13 +219,10 @@ def configure_finest_blocks(pc: PETSc.PC, blocks: list[np.ndarray]) -> None:
     against 0.70 s at 1/128), m = 1 alike (README, Iterative solver).  A no-op for another
     PC, a GAMG of one level, or a finest level already done.
     """
-    if pc.getType() != PETSc.PC.Type.GAMG or pc.getMGLevels() < 2:
-        return
-    smoother = pc.getMGSmoother(pc.getMGLevels() - 1)
-    if smoother.getPC().getType() == PETSc.PC.Type.COMPOSITE:
+    smoother = _finest_smoother(pc, PETSc.PC.Type.COMPOSITE)
+    if smoother is None:
         return
     steps = smoother.getTolerances()[3]
-    smoother.setType(PETSc.KSP.Type.RICHARDSON)  # Chebyshev estimates its bounds anew
     smoother.setType(PETSc.KSP.Type.CHEBYSHEV)
     smoother.setTolerances(max_it=steps)
     composite = smoother.getPC()
