@@ -345,8 +345,7 @@ class RigidModes:
 
     def __init__(self, comm, disc, a_const: PETSc.Mat, law):
         self.comm = comm
-        start, stop = disc.node_range
-        coords = disc.cloud.coords[start:stop]  # (n_owned, 2)
+        coords = disc.owned_coords  # (n_owned, 2)
         # Rotation about the cloud's centre: the three modes are then well conditioned.
         centre = comm.allreduce(coords.sum(axis=0)) / disc.n_nodes
         self.centre = centre

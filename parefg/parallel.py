@@ -135,7 +135,7 @@ def wait_for_all(comm, patience: float | None, abort_code: int) -> None:
 
 
 # -- rows of distributed arrays ---------------------------------------------------------
-def _alltoallv(comm, send: np.ndarray, send_counts: np.ndarray) -> np.ndarray:
+def alltoallv(comm, send: np.ndarray, send_counts: np.ndarray) -> np.ndarray:
     """Exchange a 1-D array in blocks: block r of ``send`` goes to rank r.  Collective."""
     recv_counts = np.empty(comm.size, dtype=np.int64)
     comm.Alltoall(send_counts.astype(np.int64), recv_counts)
@@ -149,48 +149,75 @@ def _alltoallv(comm, send: np.ndarray, send_counts: np.ndarray) -> np.ndarray:
     return recv
 
 
-def owned_rows(comm, local: sp.spmatrix, row_ranges: np.ndarray) -> sp.csr_matrix:
+def owned_rows(
+    comm,
+    local: sp.spmatrix,
+    row_ranges: np.ndarray,
+    ids: np.ndarray | None = None,
+    n_cols: int | None = None,
+) -> sp.csr_matrix:
     """Sum every rank's contributions into the rows each rank owns.  Collective.
 
     Parameters
     ----------
-    local : (n_rows, n_cols) sparse matrix with global row and column indices holding this
-        rank's contributions (rows anywhere).
+    local : (n_rows, n_cols) sparse matrix holding this rank's contributions (rows
+        anywhere), with global row and column indices, or with positions in ``ids``.
     row_ranges : (comm.size + 1,) rank r owns rows row_ranges[r]:row_ranges[r + 1].
+    ids : (n_rows,) int, optional
+        The global index of each row and column of a square ``local`` numbered by the
+        rows it touches (ascending): a rank holding only some of the nodes
+        (:mod:`parefg.discretization.ghosts`), or a contact Jacobian's few rows, never
+        makes a matrix with a row per global index.  None: ``local`` has global indices.
+    n_cols : int, optional
+        The global column count with ``ids`` (default: ``local``'s).
 
     Returns
     -------
     (n_owned_rows, n_cols) canonical CSR matrix of the summed owned rows (sorted columns,
     duplicates added), explicit zeros kept (they carry sparsity patterns reserved for
-    later values).
+    later values), with global columns.
     """
     local = sp.csr_matrix(local)
     local.sum_duplicates()  # canonical CSR: sorted columns, duplicates added, zeros kept
+    if ids is not None:  # ascending ids: the columns stay sorted
+        ids = np.asarray(ids, dtype=np.int64)
+        shape = (local.shape[0], local.shape[1] if n_cols is None else int(n_cols))
+        local = sp.csr_matrix((local.data, ids[local.indices], local.indptr), shape=shape)
+        local.has_canonical_format = True
     rank = comm.rank
     start, stop = int(row_ranges[rank]), int(row_ranges[rank + 1])
-    if comm.size == 1:
+    if comm.size == 1 and ids is None:
         return local
+    row_ids = np.arange(local.shape[0]) if ids is None else ids
     # CSR rows come grouped by owner: rank r's entries are one contiguous slice.  This
     # rank's own slice stays where it is; only the others' (the rows of nodes across the
     # partition's interface) travel, and are merged into the few rows they touch.
-    bounds = local.indptr[row_ranges]  # (comm.size + 1,)
+    positions = np.searchsorted(row_ids, row_ranges)  # (comm.size + 1,) first row of each
+    first, last = int(positions[rank]), int(positions[rank + 1])
+    bounds = local.indptr[positions]  # (comm.size + 1,)
     counts = np.diff(bounds)
     counts[rank] = 0
     low, high = int(bounds[rank]), int(bounds[rank + 1])
     row_counts = np.diff(local.indptr)
     send_rows = np.concatenate(
         [
-            np.repeat(np.arange(start), row_counts[:start]),
-            np.repeat(np.arange(stop, local.shape[0]), row_counts[stop:]),
+            np.repeat(row_ids[:first], row_counts[:first]),
+            np.repeat(row_ids[last:], row_counts[last:]),
         ]
     )
     send_cols = np.concatenate([local.indices[:low], local.indices[high:]])
     send_data = np.concatenate([local.data[:low], local.data[high:]])
-    rows = _alltoallv(comm, send_rows.astype(np.int64), counts) - start
-    cols = _alltoallv(comm, send_cols.astype(np.int64), counts)
-    data = _alltoallv(comm, send_data.astype(np.float64), counts)
+    rows = alltoallv(comm, send_rows.astype(np.int64), counts) - start
+    cols = alltoallv(comm, send_cols.astype(np.int64), counts)
+    data = alltoallv(comm, send_data.astype(np.float64), counts)
+    own_indptr = local.indptr[first : last + 1] - low
+    if ids is not None:  # the own rows held (a contact Jacobian's: some), spread out
+        counts_own = np.zeros(stop - start, dtype=np.int64)
+        counts_own[row_ids[first:last] - start] = np.diff(own_indptr)
+        own_indptr = np.zeros(stop - start + 1, dtype=np.int64)
+        np.cumsum(counts_own, out=own_indptr[1:])
     own = sp.csr_matrix(
-        (local.data[low:high], local.indices[low:high], local.indptr[start : stop + 1] - low),
+        (local.data[low:high], local.indices[low:high], own_indptr),
         shape=(stop - start, local.shape[1]),
     )
     own.has_canonical_format = True  # a row slice of a canonical matrix

@@ -199,14 +199,18 @@ class Coupling:
         return interleaved(self.indptr, self.indices, blocks, diagonal_only)
 
 
-def interleaved(indptr, indices, blocks: np.ndarray, diagonal_only: bool = False) -> sp.csr_matrix:
+def interleaved(
+    indptr, indices, blocks: np.ndarray, diagonal_only: bool = False, n_global: int | None = None
+) -> sp.csr_matrix:
     """(2 n)^2 CSR of the scalar pattern (indptr, indices) with 2 x 2 ``blocks`` per entry.
 
-    See :meth:`Coupling.interleaved`.
+    See :meth:`Coupling.interleaved`.  ``n_global``: the cloud's node count, which picks
+    the kernels (default n, the pattern's rows: the count where a rank holds every node).
     """
     # float64, in any layout (the mass passes a zero-stride view: no copy is made of it)
     blocks = blocks if blocks.dtype == np.float64 else blocks.astype(np.float64)
-    out_ptr, out_indices, data = kernels_for(len(indptr) - 1).interleave_blocks(
+    n_kernel = len(indptr) - 1 if n_global is None else n_global
+    out_ptr, out_indices, data = kernels_for(n_kernel).interleave_blocks(
         indptr, indices, blocks, diagonal_only
     )
     n_dofs = 2 * (len(indptr) - 1)

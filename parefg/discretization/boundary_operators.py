@@ -44,7 +44,9 @@ class BoundaryOperators:
     partition: Partition
     mls: MLS
     timings: dict[str, float]
-    n_nodes: int
+    n_nodes: int  # global
+    n_held: int  # the nodes the rank holds: the index space of the matrices built here
+    owned: slice  # this rank's own nodes among them
     n_dofs_local: int
     n_contact: int
     node_range: tuple[int, int]
@@ -57,6 +59,24 @@ class BoundaryOperators:
         self, quadrature, shape, gradients=False, keep_gradients=False, **extra
     ) -> PointSet:
         raise NotImplementedError  # the builder's: the PointSet of a quadrature
+
+    def _global_dof_columns(self, local: sp.csr_matrix) -> sp.csr_matrix:
+        raise NotImplementedError  # the builder's: held DOF columns -> global ones
+
+    def _grouping(self) -> dict[int, int]:
+        """Segments per coarse-trace group of each part the scene takes by groups (by part
+        id): the Dirichlet parts of a coarse method and the projected contact parts, as
+        :meth:`_boundaries` groups them.  Not collective."""
+        grouping = {}
+        for name, bc in self.scene.boundaries.items():
+            part_id = self.cloud.part_names.index(name)
+            if bc.kind == BoundaryKind.DIRICHLET and DIRICHLET_METHODS[bc.method].coarse:
+                grouping[part_id] = coarse_trace.CHUNK_SEGMENTS
+            if bc.kind == BoundaryKind.CONTACT and bc.method in COARSE_CONTACT_METHODS:
+                grouping[part_id] = coarse_trace.CHUNK_SEGMENTS
+            if bc.kind == BoundaryKind.CONTACT and bc.method in HAT_CONTACT_METHODS:
+                grouping[part_id] = coarse_trace.HAT_SEGMENTS
+        return grouping
 
     def _boundary_quadrature(self, part_ids: list[int], grouped=(), hat_parts=()):
         """This rank's Gauss points on segments of the given parts, and their global rows.
@@ -98,7 +118,7 @@ class BoundaryOperators:
 
     def _boundaries(self):
         """Point sets of every boundary condition; D, its parts and the Gamma_C pattern."""
-        scene, cloud, n = self.scene, self.cloud, self.n_nodes
+        scene, cloud, n = self.scene, self.cloud, self.n_held
         boundary, parts, contact_parts = {}, {}, []
         dirichlet_local = sp.csr_matrix((2 * n, 2 * n))
         for name, bc in scene.boundaries.items():
@@ -158,7 +178,7 @@ class BoundaryOperators:
                 dirichlet_local = dirichlet_local - extra.pop("nitsche_matrix")
             with phase(self.timings, "assembly"):
                 contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows, **extra)
-                pattern = contact_pattern(shape, n, group)
+                pattern = contact_pattern(shape, n, group, n_global=self.n_nodes)
         return boundary, parts, contact, dirichlet_local, pattern
 
     def _nitsche_contact_parts(self, methods: tuple[str, ...]) -> list[int]:
@@ -187,7 +207,7 @@ class BoundaryOperators:
         the largest of its group's, so that P and gamma commute.  Its error is then flat
         in the safety; a pointwise law over-constrains the MLS trace as gamma grows.
         """
-        scene, n = self.scene, self.n_nodes
+        scene, n = self.scene, self.n_held
         lam, mu = scene.material.lam, scene.material.mu
         n_gauss = scene.discretization.quadrature
         with phase(self.timings, "assembly"):  # the trace-inverse estimate
@@ -228,7 +248,12 @@ class BoundaryOperators:
             scale = sp.diags(quadrature.weights / gamma)
             matrix = (normal_traction.T @ scale @ normal_traction).tocsr()
             # PETSc, as the point set's value operator: no scipy twin is kept
-            normal_traction = petsc_matrix(self.comm, normal_traction, self.n_dofs_local, 2 * n)
+            normal_traction = petsc_matrix(
+                self.comm,
+                self._global_dof_columns(normal_traction),
+                self.n_dofs_local,
+                2 * self.n_nodes,
+            )
         return {
             "normal_traction": normal_traction,
             "gamma": gamma,
@@ -245,7 +270,7 @@ class BoundaryOperators:
         each point, else None): ||P sigma(v) n|| <= ||sigma(v) n|| on a group, so the
         bound holds for the projected form.
         """
-        scene, n = self.scene, self.n_nodes
+        scene, n = self.scene, self.n_held
         if method.consistent:
             with phase(self.timings, "assembly"):  # the trace-inverse estimate
                 per_segment = bc.safety * nitsche_beta(
@@ -286,10 +311,17 @@ class BoundaryOperators:
                 method=method.name,
                 weights=quadrature.weights,
                 beta=beta,
-                load=petsc_matrix(self.comm, load, self.n_dofs_local, 2 * n),
+                load=petsc_matrix(
+                    self.comm, self._global_dof_columns(load), self.n_dofs_local, 2 * self.n_nodes
+                ),
                 traction=None
                 if traction is None
-                else petsc_matrix(self.comm, traction, self.n_dofs_local, 2 * n),
+                else petsc_matrix(
+                    self.comm,
+                    self._global_dof_columns(traction),
+                    self.n_dofs_local,
+                    2 * self.n_nodes,
+                ),
                 projection=projection,
             )
         return part, local
@@ -297,8 +329,8 @@ class BoundaryOperators:
     def _add_trace_blocks(self, shape: ShapeValues, group: np.ndarray) -> None:
         """Append the owned nodes that each coarse-trace group's points reach (group >= 0),
         one block per group, to ``trace_blocks``.  Not collective."""
-        start, stop = self.node_range
-        owned = reached_nodes(shape, group, self.n_nodes)[:, start:stop].tocsr()
+        start = self.node_range[0]
+        owned = reached_nodes(shape, group, self.n_held)[:, self.owned].tocsr()
         blocks = np.split(owned.indices + start, owned.indptr[1:-1])  # one per group number
         self.trace_blocks.extend(block for block in blocks if len(block))  # others' are empty
 
@@ -313,8 +345,11 @@ class BoundaryOperators:
         return np.flatnonzero(np.isin(cloud.segment_part, names))
 
 
-def contact_pattern(shape: ShapeValues, n_nodes: int, group: np.ndarray) -> sp.csr_matrix:
-    """The (2 n_nodes)^2 pattern (explicit zeros) of every contact Jacobian of the points.
+def contact_pattern(
+    shape: ShapeValues, n_nodes: int, group: np.ndarray, n_global: int | None = None
+) -> sp.csr_matrix:
+    """The (2 n_nodes)^2 pattern (explicit zeros) of every contact Jacobian of the points
+    (``n_nodes`` the nodes ``shape`` numbers; ``n_global`` the cloud's, for the kernels).
 
     A point of a coarse-trace group (``group`` >= 0) reaches, through P, every node of
     its group's points: the group couples all pairs of those nodes, in both components.
@@ -327,7 +362,8 @@ def contact_pattern(shape: ShapeValues, n_nodes: int, group: np.ndarray) -> sp.c
     incidence = reached_nodes(shape, row_of_point, n_nodes)
     coupled = (incidence.T @ incidence).tocsr()  # counts >= 1: no zero is dropped
     coupled.sort_indices()
-    return interleaved(coupled.indptr, coupled.indices, np.zeros((coupled.nnz, 2, 2)))
+    blocks = np.zeros((coupled.nnz, 2, 2))
+    return interleaved(coupled.indptr, coupled.indices, blocks, n_global=n_global)
 
 
 def reached_nodes(shape: ShapeValues, row_of_point: np.ndarray, n_nodes: int) -> sp.csr_matrix:

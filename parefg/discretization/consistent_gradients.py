@@ -162,18 +162,22 @@ class ConsistencySums:
             self._add(self.rhs, node, weights[point] * shape.phi[point, slot], terms)
 
 
-def node_corrections(comm, sums: ConsistencySums, node_ranges: np.ndarray) -> np.ndarray:
+def node_corrections(
+    comm, sums: ConsistencySums, node_ranges: np.ndarray, node_ids: np.ndarray | None = None
+) -> np.ndarray:
     """xi_I (n_nodes, 2, n_p) for this rank's touched nodes (zero elsewhere).  Collective.
 
     Each node's terms are added over all ranks in the rows of its owner, which solves
     G_I xi_I = r_I; the coefficients then go back to every rank that touched the node.
+    ``node_ids``: the global number of each node of ``sums`` (None: they are global).
     Raises InputError on every rank when some G_I is singular (a support with too few
     Gauss points for P_{m-1}: a cell coarser than the nodes).
     """
     n_nodes, n_p = len(sums.moments), sums.moments.shape[1]
     width = n_p * n_p + 2 * n_p
     start, stop = int(node_ranges[comm.rank]), int(node_ranges[comm.rank + 1])
-    touched = np.flatnonzero(sums.touched).astype(PETSc.IntType)
+    touched = np.flatnonzero(sums.touched)
+    touched_ids = (touched if node_ids is None else node_ids[touched]).astype(PETSc.IntType)
     moments = sums.symmetric_moments()[touched]
     local = np.concatenate(
         [moments.reshape(len(touched), -1), sums.rhs[touched].reshape(len(touched), -1)], axis=1
@@ -181,7 +185,7 @@ def node_corrections(comm, sums: ConsistencySums, node_ranges: np.ndarray) -> np
     totals = PETSc.Vec().createMPI(
         ((stop - start) * width, PETSc.DETERMINE), bsize=width, comm=comm
     )
-    totals.setValuesBlocked(touched, local.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
+    totals.setValuesBlocked(touched_ids, local.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
     totals.assemble()
     owned = totals.getArray(readonly=True).reshape(stop - start, width)
     moments = owned[:, : n_p * n_p].reshape(-1, n_p, n_p)
@@ -209,7 +213,7 @@ def node_corrections(comm, sums: ConsistencySums, node_ranges: np.ndarray) -> np
     )
     result.setArray(coefficients.ravel())
     gathered = PETSc.Vec().createSeq(len(touched) * 2 * n_p, bsize=2 * n_p)
-    wanted = PETSc.IS().createBlock(2 * n_p, touched, comm=PETSc.COMM_SELF)
+    wanted = PETSc.IS().createBlock(2 * n_p, touched_ids, comm=PETSc.COMM_SELF)
     scatter = PETSc.Scatter().create(result, wanted, gathered, None)
     scatter.scatter(result, gathered, PETSc.InsertMode.INSERT_VALUES, PETSc.ScatterMode.FORWARD)
     out = np.zeros((n_nodes, 2, n_p))

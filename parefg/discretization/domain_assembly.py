@@ -74,9 +74,8 @@ def _groups_of(group_start: np.ndarray, first: int, last: int) -> np.ndarray:
     return group_start[(group_start >= first) & (group_start <= last)] - first
 
 
-def _pairs(neighbours, mask, group_start, n_nodes):
+def _pairs(neighbours, mask, group_start, n_nodes, kernels):
     """The groups' nodes and coupled pairs (see Coupling.of) of one block."""
-    kernels = kernels_for(n_nodes)
     node_start, nodes = kernels.group_nodes(neighbours, mask, group_start, n_nodes)
     local_of = np.zeros(n_nodes, dtype=np.int64)  # scratch of the kernels
     pairs = kernels.touched_pairs(neighbours, mask, group_start, node_start, nodes, local_of)
@@ -124,8 +123,8 @@ class BlockPasses:
 
     def __init__(self, mls: MLS, quadrature: Quadrature, timer):
         self.mls, self.quadrature, self.timer = mls, quadrature, timer
-        self.n_nodes = len(mls.nodes)
-        self.kernels = kernels_for(self.n_nodes)
+        self.n_nodes = len(mls.nodes)  # those held: the index space of the blocks' arrays
+        self.kernels = kernels_for(mls.n_global)
         bounds, group_start = _blocks(quadrature.cell)
         self.blocks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         # one array per block, passed to both passes: the numpy kernels keep what they derive
@@ -151,7 +150,7 @@ class BlockPasses:
         with self.timer("neighbours"):
             neighbours, mask = self.mls.find_neighbours(self.quadrature.points[first:last])
         with self.timer("assembly"):
-            pairs = _pairs(neighbours, mask, self.block_groups[index], self.n_nodes)
+            pairs = _pairs(neighbours, mask, self.block_groups[index], self.n_nodes, self.kernels)
         found = (neighbours, mask, *pairs)
         if len(self.blocks) == 1:
             self.searched[index] = found

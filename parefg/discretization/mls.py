@@ -164,6 +164,14 @@ class MLS:
         rank's part): the neighbour search then holds only the nodes that reach it
         (:class:`~parefg.discretization.neighbours.RegionSearch`; the same lists, points
         elsewhere grow it).  By default it holds every node.
+    node_ids : array_like of int, shape (n_nodes,), optional
+        The global number of each node, ascending, where ``nodes`` are only some of the
+        cloud's (a rank's own and ghost nodes, :mod:`parefg.discretization.ghosts`):
+        ``region`` must then hold every point evaluated.  Neighbour lists always hold
+        positions in ``nodes``.  None: ``nodes`` are the whole cloud.
+    n_global : int, optional
+        The cloud's node count, by which the default backend is chosen, the same on
+        every rank (default: len(nodes)).
     """
 
     def __init__(
@@ -175,6 +183,8 @@ class MLS:
         support_factor: float | None = None,
         backend: str | None = None,
         region=None,
+        node_ids=None,
+        n_global: int | None = None,
     ):
         if degree not in (1, 2, 3):
             raise InputError(f"discretization.degree: must be 1, 2 or 3, got {degree!r}")
@@ -188,18 +198,33 @@ class MLS:
         self.n_basis = n_basis(self.degree)
         self.weight = get_weight(weight)
         self.support_factor = support_factor
+        self.node_ids = None if node_ids is None else np.asarray(node_ids, dtype=np.int64)
+        if self.node_ids is not None and region is None:
+            raise ValueError("MLS of some of the nodes needs the region of its points")
+        self.n_global = len(self.nodes) if n_global is None else int(n_global)
         self.backend = self._choose_backend(backend)
         self.search: NeighbourSearch | RegionSearch = (
             NeighbourSearch(self.nodes, self.support_radius, self.backend)
             if region is None
-            else RegionSearch(self.nodes, self.support_radius, self.backend, region)
+            else RegionSearch(
+                self.nodes,
+                self.support_radius,
+                self.backend,
+                region,
+                complete=self.node_ids is None,
+            )
         )
+
+    def global_ids(self, positions: np.ndarray) -> np.ndarray:
+        """The global node numbers of ``positions`` in ``nodes`` (neighbour-list entries)."""
+        positions = np.asarray(positions, dtype=np.int64)
+        return positions if self.node_ids is None else self.node_ids[positions]
 
     def _choose_backend(self, backend):
         """The backend to use: the requested one, or the one of :func:`backends.choose`."""
         compiled = backends.numba_installed() and self.weight.code is not None
         if backend is None:
-            return backends.choose(len(self.nodes), compiled)
+            return backends.choose(self.n_global, compiled)
         if backend not in BACKENDS:
             raise InputError(f"MLS backend must be one of {BACKENDS}, got {backend!r}")
         if backend == "numba" and not compiled:

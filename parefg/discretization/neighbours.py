@@ -216,13 +216,20 @@ class RegionSearch:
     Parameters
     ----------
     nodes, support_radius, backend :
-        As for :class:`NeighbourSearch`, of the whole cloud (read, not copied).
+        As for :class:`NeighbourSearch`, of the nodes held (read, not copied).
     box : array_like, shape (2, 2)
         Lower and upper corners of the box the points are expected in.
+    complete : bool
+        Whether ``nodes`` are the whole cloud.  If not (a rank holding its part and the
+        ghosts that reach ``box``, :mod:`parefg.discretization.ghosts`), a point outside
+        the box could miss nodes that are not held: RuntimeError instead of a rebuild.
     """
 
-    def __init__(self, nodes: np.ndarray, support_radius: np.ndarray, backend: str, box):
+    def __init__(
+        self, nodes: np.ndarray, support_radius: np.ndarray, backend: str, box, complete=True
+    ):
         self.nodes, self.support_radius, self.backend = nodes, support_radius, backend
+        self.complete = complete
         self.rebuilds = 0
         self.box = np.asarray(box, dtype=float)  # (2, 2)
         self.members: np.ndarray | None = None
@@ -246,6 +253,14 @@ class RegionSearch:
         if len(points):
             lower, upper = points.min(axis=0), points.max(axis=0)
             if np.any(lower < self.box[0]) or np.any(upper > self.box[1]):
+                if not self.complete:  # a defect: the rank's evaluation box missed a point
+                    outside = (points < self.box[0]).any(axis=1) | (points > self.box[1]).any(
+                        axis=1
+                    )
+                    raise RuntimeError(
+                        f"MLS point {points[outside][0].tolist()} lies outside the box "
+                        f"{self.box.tolist()} whose nodes this rank holds"
+                    )
                 self.rebuilds += 1
                 grown = [np.minimum(lower, self.box[0]), np.maximum(upper, self.box[1])]
                 self.box = np.array(grown)

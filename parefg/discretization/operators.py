@@ -23,6 +23,7 @@ from parefg.discretization.budget import Budget, check_problem_size
 from parefg.discretization.consistent_gradients import ConsistencySums, node_corrections
 from parefg.discretization.dirichlet import DirichletPart
 from parefg.discretization.domain_assembly import BlockPasses, value_rows
+from parefg.discretization.ghosts import add_ghosts, evaluation_box, owned_positions
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients, sorted_gradients
 from parefg.discretization.point_set import PointSet, point_operator
@@ -41,10 +42,10 @@ class Discretization:
     """Node cloud, partition and the constant operators of a run (built collectively)."""
 
     comm: object
-    cloud: NodeCloud
+    cloud: NodeCloud  # the nodes this rank holds: its own and its ghosts (and the boundary's)
     partition: Partition
-    node_range: tuple[int, int]  # this rank's nodes [start, stop)
-    n_nodes: int
+    node_range: tuple[int, int]  # this rank's nodes [start, stop) (global numbers)
+    n_nodes: int  # global
     mass: PETSc.Mat  # M = int rho phi_I phi_J
     stiffness: PETSc.Mat  # K = a(phi_J, phi_I)
     dirichlet: PETSc.Mat  # D of the Dirichlet methods (parefg.discretization.dirichlet)
@@ -66,6 +67,11 @@ class Discretization:
     @property
     def n_dofs(self) -> int:
         return 2 * self.n_nodes
+
+    @property
+    def owned_coords(self) -> np.ndarray:
+        """(n_owned, 2) this rank's own nodes' coordinates, in global order."""
+        return self.cloud.coords[self.cloud.run_of(*self.node_range)]
 
     @property
     def owned(self) -> dict[str, sp.csr_matrix]:
@@ -155,13 +161,26 @@ class _Builder(BoundaryOperators):
             cloud = scene_cloud_on_root(comm, scene, budget)
             budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
             self.cloud, self.partition = partition_on_root(comm, cloud)
-        self.n_nodes = len(self.cloud.coords)
+            del cloud
+            # the nodes whose supports reach where this rank evaluates MLS (ghosts)
+            box = evaluation_box(self.cloud, self.partition, comm.rank, self._grouping())
+            self.cloud = add_ghosts(
+                comm, self.cloud, self.partition.node_ranges, scene.discretization.support, box
+            )
         self.node_ranges = self.partition.node_ranges  # (comm.size + 1,)
+        self.n_nodes = int(self.node_ranges[-1])  # global; the cloud holds n_held of them
+        self.n_held = len(self.cloud.coords)
         self.dof_ranges = 2 * self.node_ranges
         start, stop = self.node_ranges[comm.rank], self.node_ranges[comm.rank + 1]
         self.node_range = (int(start), int(stop))
+        self.owned = owned_positions(self.cloud, self.node_ranges, comm.rank)  # in the cloud
         self.n_nodes_local = int(stop - start)
         self.n_dofs_local = 2 * self.n_nodes_local
+        # every matrix below is built on the held nodes' positions, mapped to global
+        # numbers where it becomes a PETSc matrix (None: the positions are global)
+        self.dof_ids = None
+        if self.cloud.node_ids is not None:
+            self.dof_ids = (2 * self.cloud.node_ids[:, None] + np.arange(2)).ravel()
         support_radius = scene.discretization.support * self.cloud.spacing
         self.mls = MLS(
             self.cloud.coords,
@@ -169,19 +188,12 @@ class _Builder(BoundaryOperators):
             scene.discretization.degree,
             scene.discretization.weight,
             support_factor=scene.discretization.support,
-            region=self._region(support_radius),
+            region=box,
+            node_ids=self.cloud.node_ids,
+            n_global=self.n_nodes,
         )
         self.conditions: list[np.ndarray] = []  # MLS condition numbers of every point set
         self.trace_blocks: list[np.ndarray] = []  # owned nodes of each coarse-trace group
-
-    def _region(self, support_radius: np.ndarray) -> np.ndarray:
-        """(2, 2) the box where this rank evaluates MLS, as far as it is known in advance:
-        its own nodes' bounding box widened by their largest support radius, which takes
-        in its cells (a cell belongs to the part of its centroid) and the segments and
-        cells next to them.  Not collective."""
-        start, stop = self.node_range
-        owned, reach = self.cloud.coords[start:stop], support_radius[start:stop].max()
-        return np.array([owned.min(axis=0) - reach, owned.max(axis=0) + reach])
 
     def build(self) -> Discretization:
         comm, cloud, n = self.comm, self.cloud, self.n_nodes
@@ -190,7 +202,7 @@ class _Builder(BoundaryOperators):
         nodes = self._node_points()
         with phase(self.timings, "assembly"):
             dirichlet = self._square(dirichlet_local)
-            contact_pattern = owned_rows(comm, pattern_local, self.dof_ranges)
+            contact_pattern = self._owned_rows(pattern_local)
         conditions = np.concatenate(self.conditions) if self.conditions else np.ones(1)
         return Discretization(
             comm=comm,
@@ -232,7 +244,9 @@ class _Builder(BoundaryOperators):
             self._collectively(lambda: passes.add_consistency_sums(sums))
             self._boundary_consistency_sums(sums)
             with phase(self.timings, "assembly"):
-                correction = node_corrections(self.comm, sums, self.node_ranges)
+                correction = node_corrections(
+                    self.comm, sums, self.node_ranges, self.cloud.node_ids
+                )
         # S only where it is small on every rank (BUILT_VALUE_BYTES; see PointSet.integrate)
         values = self.comm.allreduce(12 * int(row_lengths.sum()), op=MPI.MAX) < BUILT_VALUE_BYTES
         operators = self._collectively(
@@ -245,21 +259,21 @@ class _Builder(BoundaryOperators):
         with phase(self.timings, "assembly"):
             pattern = (operators.indptr, operators.indices)
             blocks = _mass_blocks(operators.mass)
-            mass = self._square(interleaved(*pattern, blocks, diagonal_only=True))
+            mass = self._square(
+                interleaved(*pattern, blocks, diagonal_only=True, n_global=self.n_nodes)
+            )
             blocks = _stiffness_blocks(
                 operators.gradient_gram, scene.material.lam, scene.material.mu
             )
             operators.gradient_gram = operators.mass = np.zeros(0)
-            stiffness = self._square(interleaved(*pattern, blocks))
+            stiffness = self._square(interleaved(*pattern, blocks, n_global=self.n_nodes))
             del blocks
             csr = (operators.value_indptr, operators.value_indices, operators.value_data)
             domain = PointSet(
                 points=quadrature.points,
                 weights=quadrature.weights,
                 normals=None,
-                values=point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes)
-                if values
-                else None,
+                values=self._point_operator(csr) if values else None,
                 gradients=PointGradients(
                     self.mls, quadrature.points, keep=False, kept=operators.gradients
                 ),
@@ -276,9 +290,12 @@ class _Builder(BoundaryOperators):
         Collective when called.
         """
         comm, mls, n_local, n_nodes = self.comm, self.mls, self.n_nodes_local, self.n_nodes
-        return lambda points: point_operator(
-            comm, value_rows(mls, points, bounds), n_local, n_nodes
-        )
+
+        def rebuild(points):
+            indptr, indices, data = value_rows(mls, points, bounds)
+            return point_operator(comm, (indptr, mls.global_ids(indices), data), n_local, n_nodes)
+
+        return rebuild
 
     def _domain_rule(self) -> Callable[[], Quadrature]:
         """A function computing the Gauss points of this rank's cells (the same numbers at
@@ -322,7 +339,7 @@ class _Builder(BoundaryOperators):
 
         As :func:`~parefg.parallel.petsc_matrix`, without copying the CSR arrays first.
         """
-        owned = owned_rows(self.comm, local, self.dof_ranges)
+        owned = self._owned_rows(local)
         del local
         owned.sort_indices()
         matrix = PETSc.Mat().createAIJ(
@@ -342,6 +359,29 @@ class _Builder(BoundaryOperators):
         matrix.assemble()
         return matrix
 
+    def _owned_rows(self, local: sp.csr_matrix) -> sp.csr_matrix:
+        """:func:`~parefg.parallel.owned_rows` of a (2 n_held)^2 matrix on the held
+        nodes' DOFs: this rank's rows, global columns.  Collective."""
+        return owned_rows(self.comm, local, self.dof_ranges, self.dof_ids, 2 * self.n_nodes)
+
+    def _global_dof_columns(self, local: sp.csr_matrix) -> sp.csr_matrix:
+        """``local`` (rows x 2 n_held, columns the held nodes' DOFs) with global columns
+        (2 n_nodes of them).  Not collective."""
+        if self.dof_ids is None:
+            return local
+        local = sp.csr_matrix(local)
+        return sp.csr_matrix(
+            (local.data, self.dof_ids[local.indices], local.indptr),
+            shape=(local.shape[0], 2 * self.n_nodes),
+        )
+
+    def _point_operator(self, csr) -> PETSc.Mat:
+        """:func:`~parefg.discretization.point_set.point_operator` of CSR arrays whose
+        columns are held nodes' positions.  Collective."""
+        indptr, indices, data = csr
+        csr = (indptr, self.mls.global_ids(indices), data)
+        return point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes)
+
     def _point_set(
         self, quadrature, shape, gradients=False, keep_gradients=False, **extra
     ) -> PointSet:
@@ -351,12 +391,11 @@ class _Builder(BoundaryOperators):
         evaluate them again), starting from those of ``shape`` if it has them; else they
         are re-evaluated per use.
         """
-        local = value_operator(shape, self.n_nodes)
-        csr = (local.indptr, local.indices, local.data)
-        values = point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes)
+        local = value_operator(shape, self.n_held)
+        values = self._point_operator((local.indptr, local.indices, local.data))
         kept = None
         if keep_gradients and shape.dphi is not None:
-            kept = [sorted_gradients(shape, self.n_nodes)]
+            kept = [sorted_gradients(shape, self.n_held)]
         source = PointGradients(self.mls, quadrature.points, keep=keep_gradients, kept=kept)
         return PointSet(
             points=quadrature.points,
@@ -373,8 +412,8 @@ class _Builder(BoundaryOperators):
         The shape gradients are evaluated with the values when von Mises stresses are
         output (every run writes its final step), else never.
         """
-        start, stop = self.node_ranges[self.comm.rank], self.node_ranges[self.comm.rank + 1]
-        points = self.cloud.coords[start:stop]
+        start, stop = self.node_range
+        points = self.cloud.coords[self.owned]
         shape = self._shape(points, gradients="von_mises" in self.scene.output.fields)
         with phase(self.timings, "assembly"):
             quadrature = Quadrature(
@@ -383,7 +422,7 @@ class _Builder(BoundaryOperators):
                 cell=np.arange(start, stop),
                 normals=None,
             )
-            rows = self.cloud.original_index[start:stop]
+            rows = self.cloud.original_index[self.owned]
             nodes = self._point_set(
                 quadrature, shape, gradients=True, keep_gradients=True, rows=rows
             )

@@ -100,12 +100,20 @@ class PointGradients:
         )
         return self._reached
 
+    def _nodal_values(self, comm, u: PETSc.Vec):
+        """(values, lookup) of :func:`_nodal_values` at the nodes the points reach (all
+        nodes on one rank).  Collective."""
+        if comm.size == 1:
+            return _nodal_values(comm, u, None, None)
+        reached = self._reached_nodes()
+        return _nodal_values(comm, u, reached, self.mls.global_ids(reached))
+
     def evaluate(self, comm, u: PETSc.Vec) -> np.ndarray:
         """(n_points, 2, 2) with [q, i, j] = d u_i / d x_j at the points.  Collective.
 
         ``u`` is the interleaved DOF vector (block size 2).
         """
-        nodal, lookup = _nodal_values(comm, u, None if comm.size == 1 else self._reached_nodes())
+        nodal, lookup = self._nodal_values(comm, u)
         out = np.empty((len(self._points()), 2, 2))
         start = 0
         for nodes, dphi in self._blocks():
@@ -126,7 +134,7 @@ class PointGradients:
         here whether or not gradients are kept (kept blocks hold no values); nothing is
         kept between calls.
         """
-        nodal, lookup = _nodal_values(comm, u, None if comm.size == 1 else self._reached_nodes())
+        nodal, lookup = self._nodal_values(comm, u)
         points = self._points()
         out = np.empty((len(points), 2))
         grad = np.empty((len(points), 2, 2)) if gradients else None
@@ -158,7 +166,7 @@ class PointGradients:
         """
         points = self._points()
         n_nodes = len(self.mls.nodes)
-        sums = np.zeros((len(outs), 2, n_nodes))  # scratch by node (the cloud is on every rank)
+        sums = np.zeros((len(outs), 2, n_nodes))  # scratch by node held (own and ghosts)
         reached = np.zeros(n_nodes, dtype=bool)
         for start in range(0, len(points), BLOCK_POINTS):
             shape = self.mls.evaluate(points[start : start + BLOCK_POINTS], gradients=False)
@@ -179,7 +187,8 @@ class PointGradients:
                         nodes - first, weights=terms, minlength=span.stop - first
                     )
         touched = np.flatnonzero(reached)
-        dofs = (2 * touched[:, None] + np.arange(2)).ravel().astype(PETSc.IntType)
+        touched_ids = self.mls.global_ids(touched)
+        dofs = (2 * touched_ids[:, None] + np.arange(2)).ravel().astype(PETSc.IntType)
         for k, out in enumerate(outs):
             out.set(0.0)
             out.setValues(dofs, sums[k][:, touched].T.ravel(), addv=PETSc.InsertMode.ADD_VALUES)
@@ -222,15 +231,17 @@ def _pairwise_row_sums(products: np.ndarray) -> np.ndarray:
     return total
 
 
-def _nodal_values(comm, u: PETSc.Vec, reached: np.ndarray | None):
-    """u's nodal values (n, 2) at the ``reached`` nodes (all nodes on one rank).  Collective.
+def _nodal_values(comm, u: PETSc.Vec, reached: np.ndarray | None, reached_ids: np.ndarray | None):
+    """u's nodal values (n, 2) at the ``reached`` nodes (held positions; all nodes on one
+    rank: None), whose global numbers are ``reached_ids``.  Collective.
 
     Returns (values, lookup): lookup is None when values are indexed by node, else the
     sorted nodes of the rows.
     """
     if reached is None:
         return u.getArray(readonly=True).reshape(-1, 2), None
-    indices = PETSc.IS().createBlock(2, reached.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
+    assert reached_ids is not None
+    indices = PETSc.IS().createBlock(2, reached_ids.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
     gathered = PETSc.Vec().createSeq(2 * len(reached), comm=PETSc.COMM_SELF)
     scatter = PETSc.Scatter().create(u, indices, gathered, None)
     scatter.scatter(u, gathered, addv=PETSc.InsertMode.INSERT_VALUES)

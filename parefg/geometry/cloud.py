@@ -50,6 +50,12 @@ class NodeCloud:
     segment_cells : BoundaryCells or None
         The cell each segment bounds, set where the cells are distributed (every rank
         keeps it for every segment); None while the cloud holds all its cells.
+    node_ids : (n_nodes,) int64 or None
+        The global (partition) number of each node held, ascending, once distributed to
+        a rank that holds only some nodes (its own, the ghosts its supports reach and
+        the boundary's; :mod:`~parefg.geometry.distribute`): the cells and segments then
+        refer to nodes by their position here.  None: the cloud holds every node,
+        numbered 0 .. n_nodes - 1.
     """
 
     coords: np.ndarray
@@ -61,11 +67,27 @@ class NodeCloud:
     part_names: list[str]
     original_index: np.ndarray
     segment_cells: BoundaryCells | None = None
+    node_ids: np.ndarray | None = None
 
     @property
     def n_nodes(self) -> int:
-        """Number of nodes N."""
+        """Number of nodes held (N where the cloud holds every node)."""
         return len(self.coords)
+
+    def global_ids(self) -> np.ndarray:
+        """(n_nodes,) the global number of each node held."""
+        return np.arange(self.n_nodes) if self.node_ids is None else self.node_ids
+
+    def run_of(self, start: int, stop: int) -> slice:
+        """Where the nodes numbered start .. stop - 1 (all held, e.g. a rank's own) sit."""
+        first = int(self.positions(np.array([start]))[0]) if stop > start else 0
+        return slice(first, first + stop - start)
+
+    def positions(self, global_ids: np.ndarray) -> np.ndarray:
+        """Where the nodes numbered ``global_ids`` (all held) sit in the arrays here."""
+        if self.node_ids is None:
+            return np.asarray(global_ids, dtype=np.int64)
+        return np.searchsorted(self.node_ids, global_ids)
 
     @property
     def dim(self) -> int:

@@ -4,12 +4,11 @@
 The recursive coordinate bisection of :func:`~parefg.geometry.partition.partition_cloud`
 is deterministic: rank 0 computes it and sends the result, with buffer-based ``Bcast`` and
 ``Send`` (no pickling of the cloud; only the small headers -- shapes, dtypes, part names
--- are pickled).  Each rank receives the cells it owns, not the whole mesh, and the cell
-next to every boundary segment (:class:`~parefg.geometry.cloud.BoundaryCells`, O(boundary)).
-
-Every rank still receives every node (coordinates, spacing, original index) and every
-boundary segment: a rank-local node set (owned nodes plus ghosts) is the remaining part
-of issue 13.
+-- are pickled).  Each rank receives the cells it owns, not the whole mesh, and the nodes
+those cells, its own nodes and the boundary use; every rank receives the boundary
+(segments and the cell next to each, :class:`~parefg.geometry.cloud.BoundaryCells`):
+O(N / p + boundary) per rank.  The ghost nodes whose supports reach a rank's part come
+from their owners afterwards (:mod:`parefg.discretization.ghosts`).
 """
 
 from __future__ import annotations
@@ -21,10 +20,11 @@ from parefg.geometry.cloud import BoundaryCells, NodeCloud, boundary_cells
 from parefg.geometry.partition import Partition, partition_cloud
 from parefg.parallel import run_on_root
 
-# what every rank keeps whole: the nodes and the boundary
-_SHARED_ARRAYS = ("coords", "spacing", "segments", "segment_part", "original_index")
-_CELL_ARRAYS = ("quads", "triangles")  # what each rank keeps of its own
+# what every rank keeps whole: the boundary, the partition's ranges
+_SHARED_ARRAYS = ("segments", "segment_part")
 _PARTITION_ARRAYS = ("node_ranges", "segment_owner")
+# what each rank keeps of its own: its nodes' numbers and data, its cells
+_HELD_ARRAYS = ("node_ids", "coords", "spacing", "original_index", "quads", "triangles")
 # elements per Bcast or Send: an MPI count is an int, 2^31 - 1 at most (the coordinates of
 # 1e9 nodes are 2e9 numbers)
 BCAST_CHUNK = 1 << 30
@@ -34,9 +34,11 @@ def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partiti
     """``partition_cloud(cloud, comm.size)`` computed on rank 0, each rank's part sent to
     it.  Collective.
 
-    Returns this rank's cloud: every node and segment, renumbered, with only the cells
-    this rank owns (in their order in the whole mesh) and ``segment_cells`` set; and the
-    partition without the cells' owners (``quad_owner``, ``triangle_owner`` None).
+    Returns this rank's cloud and the partition without the cells' owners
+    (``quad_owner``, ``triangle_owner`` None).  The cloud holds the nodes of this rank's
+    part, of its cells (in their order in the whole mesh) and of the boundary, with
+    ``node_ids`` their global numbers (None on one rank: every node), every segment and
+    ``segment_cells``; cells, segments and segment cells refer to the nodes held.
 
     ``cloud`` is only read on rank 0 (the other ranks may pass None: the run meshes on
     rank 0 only, :func:`~parefg.geometry.gmsh_mesh.mesh_on_root`).  A bad part count
@@ -45,7 +47,7 @@ def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partiti
     # any failure on rank 0 (a bad part count, memory) ends every rank (run_on_root)
     result = run_on_root(comm, _parts, cloud, comm.size)
     part_names = comm.bcast(None if cloud is None else list(cloud.part_names), root=0)
-    renumbered, partition, cells, own = result if result is not None else (None,) * 4
+    renumbered, partition, cells, held = result if result is not None else (None,) * 4
     del result
     shared = _bcast_arrays(
         comm,
@@ -55,15 +57,24 @@ def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partiti
         + [getattr(partition, a) for a in _PARTITION_ARRAYS]
         + [cells.cell, cells.corners],
     )
-    del renumbered, partition, cells  # rank 0's whole mesh: each rank keeps its own cells
-    own_cells = _scatter_arrays(comm, own)
-    n_shared = len(_SHARED_ARRAYS)
-    node_ranges, segment_owner, cell, corners = shared[n_shared:]
+    del renumbered, partition, cells  # rank 0's whole mesh: each rank keeps its part
+    mine = dict(zip(_HELD_ARRAYS, _scatter_arrays(comm, held), strict=True))
+    del held
+    segments, segment_part, node_ranges, segment_owner, cell, corners = shared
+    node_ids = mine.pop("node_ids")
+    complete = len(node_ids) == node_ranges[-1]  # every node (one rank): numbered as held
+    held_ids = None if complete else node_ids
     rank_cloud = NodeCloud(
-        **dict(zip(_SHARED_ARRAYS, shared[:n_shared], strict=True)),
-        **dict(zip(_CELL_ARRAYS, own_cells, strict=True)),
+        coords=mine["coords"],
+        spacing=mine["spacing"],
+        original_index=mine["original_index"],
+        quads=held_positions(held_ids, mine["quads"]),
+        triangles=held_positions(held_ids, mine["triangles"]),
+        segments=held_positions(held_ids, segments),
+        segment_part=segment_part,
         part_names=part_names,
-        segment_cells=BoundaryCells(cell=cell, corners=corners),
+        segment_cells=BoundaryCells(cell=cell, corners=held_positions(held_ids, corners)),
+        node_ids=held_ids,
     )
     partition = Partition(
         n_parts=int(comm.size),
@@ -75,16 +86,42 @@ def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partiti
     return rank_cloud, partition
 
 
+def held_positions(node_ids: np.ndarray | None, nodes: np.ndarray) -> np.ndarray:
+    """``nodes`` (global numbers, -1 kept as -1) as positions in the ascending
+    ``node_ids`` that hold them all (None: the numbers are the positions).  Not
+    collective."""
+    if node_ids is None:
+        return nodes
+    return np.where(nodes >= 0, np.searchsorted(node_ids, nodes), -1).astype(np.int64)
+
+
 def _parts(cloud: NodeCloud, n_parts: int) -> tuple:
     """Rank 0's work: the renumbered cloud, its partition, the segments' cells, and each
-    part's own cells [[quads, triangles] of part r for r in range(n_parts)]."""
+    part's held arrays (_HELD_ARRAYS, in that order, for part r at index r).
+
+    Part r holds its own nodes, its cells' nodes and the boundary's (the segments' ends
+    and the corners of their cells); one part holds every node as it is (no copies).
+    """
     renumbered, partition = partition_cloud(cloud, n_parts)
-    own = [
-        [renumbered.quads[partition.quad_owner == part],
-         renumbered.triangles[partition.triangle_owner == part]]
-        for part in range(n_parts)
-    ]  # fmt: skip
-    return renumbered, partition, boundary_cells(renumbered), own
+    segment_cells = boundary_cells(renumbered)
+    if n_parts == 1:
+        every = np.arange(renumbered.n_nodes)
+        held = [[every, *(getattr(renumbered, a) for a in _HELD_ARRAYS[1:])]]
+        return renumbered, partition, segment_cells, held
+    corners = segment_cells.corners
+    boundary = np.union1d(renumbered.segments.ravel(), corners[corners >= 0])
+    held = []
+    for part in range(n_parts):
+        quads = renumbered.quads[partition.quad_owner == part]
+        triangles = renumbered.triangles[partition.triangle_owner == part]
+        start, stop = partition.node_ranges[part], partition.node_ranges[part + 1]
+        ids = np.union1d(
+            np.arange(start, stop),
+            np.union1d(np.union1d(quads.ravel(), triangles.ravel()), boundary),
+        ).astype(np.int64)
+        data = [renumbered.coords[ids], renumbered.spacing[ids], renumbered.original_index[ids]]
+        held.append([ids, *data, quads, triangles])
+    return renumbered, partition, segment_cells, held
 
 
 def _bcast_arrays(comm, arrays: list[np.ndarray] | None) -> list[np.ndarray]:

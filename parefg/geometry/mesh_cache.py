@@ -36,9 +36,11 @@ from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.shapes import SHAPES
 
 FORMAT = 1  # layout of an entry; part of the key
-# the arrays of a meshed cloud (a distributed one adds segment_cells, which is not cached)
+# the arrays of a meshed cloud (a distributed one adds segment_cells and node_ids, not cached)
 ARRAYS = [
-    f.name for f in dataclasses.fields(NodeCloud) if f.name not in ("part_names", "segment_cells")
+    f.name
+    for f in dataclasses.fields(NodeCloud)
+    if f.name not in ("part_names", "segment_cells", "node_ids")
 ]
 
 

@@ -133,10 +133,9 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
         MLS reproduces linear fields, so the nodal parameters of a rigid motion are the
         motion evaluated at the nodes.
         """
-        start, stop = self.disc.node_range
         coordinates = matrix.createVecRight()
         coordinates.setBlockSize(2)
-        coordinates.setArray(self.disc.cloud.coords[start:stop].ravel())
+        coordinates.setArray(self.disc.owned_coords.ravel())
         return PETSc.NullSpace().createRigidBody(coordinates)
 
     def _rigid_mode_check(self) -> RigidModes | None:

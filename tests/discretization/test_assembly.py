@@ -10,10 +10,10 @@ under mpirun (the reference sums every rank's dense contribution with an allredu
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from held_nodes import global_mls
 from mpi4py import MPI
 
 from parefg.discretization.assembly import Coupling
-from parefg.discretization.mls import MLS
 from parefg.discretization.operators import build_discretization
 from parefg.parallel import owned_rows
 from parefg.scene.loader import load_scene
@@ -107,11 +107,8 @@ def case(request):
         "square", [f"discretization.degree={request.param}", "discretization.h=0.0625"]
     )
     disc = build_discretization(MPI.COMM_WORLD, scene)
-    cloud = disc.cloud
-    settings = scene.discretization
-    mls = MLS(cloud.coords, settings.support * cloud.spacing, settings.degree, settings.weight,
-              support_factor=settings.support)  # fmt: skip
-    return scene, disc, mls
+    # the held nodes, global numbers in the lists: the references index global nodes
+    return scene, disc, global_mls(disc, scene.discretization)
 
 
 # -- tests ---------------------------------------------------------------------------
@@ -235,8 +232,7 @@ def test_point_operators_equal_reference(case):
     _, disc, mls = case
     n = disc.n_nodes
     u = disc.create_vec()
-    start, stop = disc.node_range
-    coords = disc.cloud.coords[start:stop]
+    coords = disc.owned_coords
     u.setArray(np.column_stack([np.sin(3 * coords[:, 0]), coords[:, 0] * coords[:, 1]]).ravel())
     whole = np.concatenate(disc.comm.allgather(u.getArray()))  # (2 n,) every rank's block
     for points in (disc.domain, disc.nodes):

@@ -102,7 +102,7 @@ def _corrections(builder, compiled: bool):
     sums = ConsistencySums(mls.nodes, mls.support_radius, mls.degree, compiled=compiled)
     passes.add_consistency_sums(sums)
     builder._boundary_consistency_sums(sums)
-    coefficients = node_corrections(builder.comm, sums, builder.node_ranges)
+    coefficients = node_corrections(builder.comm, sums, builder.node_ranges, builder.cloud.node_ids)
     shape = mls.evaluate(quadrature.points, gradients=True)
     corrected = corrected_gradients(
         shape, quadrature.points, mls.nodes, mls.support_radius, coefficients, mls.degree, compiled

@@ -137,9 +137,10 @@ def test_radius_classes_span_less_than_the_ratio_and_reach_their_radii():
 
 
 def test_a_rank_searches_only_the_nodes_near_its_part():
-    """In a run, each rank's MLS searches the nodes that reach its own part (on 2 ranks,
-    at h = 1/32, at most 75 % of the cloud's; on 1, all), and every evaluation of the run
-    (the build, steps, output fields, error norms) falls in the box it started with."""
+    """In a run, each rank holds and searches only the nodes that reach its own part (on
+    2 ranks, at h = 1/32, at most 75 % of the cloud's; on 1, all), and every evaluation of
+    the run (the build, steps, output fields, error norms) falls in the box it started
+    with (on several ranks a point outside it is an error: its nodes may not be held)."""
     from mpi4py import MPI
 
     from parefg.io.observers import output_fields
@@ -158,3 +159,25 @@ def test_a_rank_searches_only_the_nodes_near_its_part():
         assert search.members is None  # every node
     else:
         assert len(search.members) <= 0.75 * sim.disc.n_nodes, len(search.members)
+        assert len(sim.disc.cloud.coords) <= 0.85 * sim.disc.n_nodes  # own, ghosts, boundary
+        assert not search.complete
+
+
+def test_a_search_of_some_nodes_refuses_points_outside_its_box():
+    """Holding only the nodes that reach its box (a rank's own and ghost nodes), a search
+    cannot grow: a point outside the box is a RuntimeError, not a list missing nodes;
+    points inside get the lists of the whole cloud."""
+    nodes, radius, _ = graded_cloud()
+    box = np.array([[0.2, 0.2], [0.6, 0.7]])
+    held = np.flatnonzero(
+        np.hypot(*(nodes - np.clip(nodes, *box)).T) <= radius * 1.01
+    )  # what add_ghosts holds (and a little more)
+    search = RegionSearch(nodes[held], radius[held], "numpy", box, complete=False)
+    inside = np.random.default_rng(5).uniform(box[0], box[1], size=(50, 2))
+    found, mask = search.find(inside)
+    expected, expected_mask = brute_force(inside, nodes, radius)
+    np.testing.assert_array_equal(
+        np.where(mask, held[found], -1), np.where(expected_mask, expected, -1)
+    )
+    with pytest.raises(RuntimeError, match="outside the box"):
+        search.find(np.array([[0.5, 0.5], [0.9, 0.5]]))

@@ -10,6 +10,7 @@ eigenvalues of the assembled matrices (the estimate itself is per segment, rank-
 
 import numpy as np
 import pytest
+from held_nodes import whole_array
 from mpi4py import MPI
 
 from parefg.discretization.dirichlet import DIRICHLET_METHODS, local_operators
@@ -71,8 +72,11 @@ def test_every_segment_bounds_exactly_one_cell(cells):
     whole = partition_cloud(whole, COMM.size)[0]
     kept = cloud.segment_cells
     assert kept is not None and np.all(kept.cell >= 0)
-    np.testing.assert_array_equal(kept.corners, boundary_cells(whole).corners)
-    for (a, b), corners in zip(cloud.segments, kept.corners, strict=True):
+    kept_corners = whole_array(cloud.global_ids(), kept.corners)  # held positions -> global
+    np.testing.assert_array_equal(kept_corners, boundary_cells(whole).corners)
+    segments = whole_array(cloud.global_ids(), cloud.segments)
+    np.testing.assert_array_equal(segments, whole.segments)
+    for (a, b), corners in zip(segments, kept_corners, strict=True):
         corners = corners[corners >= 0]
         edges = set(zip(corners, np.roll(corners, -1), strict=True))
         assert (a, b) in edges

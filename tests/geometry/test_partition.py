@@ -147,23 +147,36 @@ def test_partition_on_root_equals_partition_on_every_rank(zcloud, meshed_on):
         given = mesh_on_root(comm, {"shape": "z"}, 0.05)
         assert (given is None) == (comm.rank > 0)
     got_cloud, got = partition_on_root(comm, given)
-    for name in ("coords", "spacing", "segments", "segment_part", "original_index"):
-        np.testing.assert_array_equal(getattr(got_cloud, name), getattr(expected_cloud, name))
+    held = got_cloud.global_ids()  # this rank's nodes, its cells' and the boundary's
+    for name in ("coords", "spacing", "original_index"):
+        np.testing.assert_array_equal(getattr(got_cloud, name), getattr(expected_cloud, name)[held])
     for name in ("node_ranges", "segment_owner"):
         np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+    np.testing.assert_array_equal(held[got_cloud.segments], expected_cloud.segments)
+    np.testing.assert_array_equal(got_cloud.segment_part, expected_cloud.segment_part)
     assert got_cloud.part_names == expected_cloud.part_names
     # each rank keeps its own cells, in the whole mesh's order, and every segment's cell
     assert got.quad_owner is None and got.triangle_owner is None
     np.testing.assert_array_equal(
-        got_cloud.quads, expected_cloud.quads[expected.quad_owner == comm.rank]
+        held[got_cloud.quads], expected_cloud.quads[expected.quad_owner == comm.rank]
     )
     np.testing.assert_array_equal(
-        got_cloud.triangles, expected_cloud.triangles[expected.triangle_owner == comm.rank]
+        held[got_cloud.triangles], expected_cloud.triangles[expected.triangle_owner == comm.rank]
     )
     kept, whole = got_cloud.segment_cells, boundary_cells(expected_cloud)
     assert kept is not None
     np.testing.assert_array_equal(kept.cell, whole.cell)
-    np.testing.assert_array_equal(kept.corners, whole.corners)
+    np.testing.assert_array_equal(
+        np.where(kept.corners >= 0, held[kept.corners], -1), whole.corners
+    )
+    # no more than those nodes: on several ranks, fewer than the whole cloud
+    start, stop = expected.node_ranges[comm.rank], expected.node_ranges[comm.rank + 1]
+    boundary = np.union1d(expected_cloud.segments.ravel(), whole.corners[whole.corners >= 0])
+    cells = [expected_cloud.quads[expected.quad_owner == comm.rank].ravel(),
+             expected_cloud.triangles[expected.triangle_owner == comm.rank].ravel()]  # fmt: skip
+    needed = np.union1d(np.arange(start, stop), np.union1d(np.concatenate(cells), boundary))
+    np.testing.assert_array_equal(held, needed)
+    assert (got_cloud.node_ids is None) == (comm.size == 1)
 
 
 def test_broadcast_arrays_arrive_whole_in_chunks(monkeypatch):
