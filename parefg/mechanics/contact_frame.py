@@ -58,9 +58,17 @@ class ContactFrame:
             normal_traction = _scipy_from_petsc(self.traction_op)
             shifted = local[0::2] - sp.diags(1.0 / self.gamma) @ normal_traction
             local = _interleave_rows(shifted.tocsr(), local[1::2])
-        self.normal_op = local[0::2]  # (n_c, n_dofs) scipy, for the Jacobian
-        self.tangent_op = local[1::2]
         self.operator = petsc_matrix(comm, local, n_local, n_dofs)
+        # for the Jacobian, on the DOFs the points reach only (ascending): its products
+        # then have a row per such DOF, not one per DOF of the whole problem
+        self.n_dofs = n_dofs
+        self.dof_columns = np.unique(local.indices)
+        compact = sp.csr_matrix(
+            (local.data, np.searchsorted(self.dof_columns, local.indices), local.indptr),
+            shape=(local.shape[0], len(self.dof_columns)),
+        )
+        self.normal_op = compact[0::2]  # (n_c, len(dof_columns)) scipy
+        self.tangent_op = compact[1::2]
         # (2 n_c,) work vector at the points, reused by every call (no PETSc object per call)
         self._point_vec = self.operator.createVecLeft()
         self._pair_weights = np.repeat(self.weights, 2).reshape(-1, 2)  # (n_c, 2) w_q, w_q
