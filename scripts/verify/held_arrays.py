@@ -79,7 +79,8 @@ def main() -> None:
     )
     state = sim.start()
     state = sim.step(state, 1)
-    found = sorted(arrays_of(sim).values(), reverse=True)
+    found = sorted(arrays_of(sim).values(), reverse=True)  # by bytes
+    longest = max(found, key=lambda item: item[1])
     disc = sim.disc
     lines = [
         f"rank {comm.rank}: {disc.n_nodes} nodes, {disc.node_range[1] - disc.node_range[0]} own, "
@@ -89,12 +90,13 @@ def main() -> None:
         f"    {nbytes / 1e6:8.2f} MB, length {length:8d}  {path}"
         for nbytes, length, path in found[: args.top]
     ]
+    lines.append(f"    longest: length {longest[1]} ({longest[0] / 1e6:.2f} MB)  {longest[2]}")
     report = comm.gather("\n".join(lines), root=0)
-    largest = comm.allreduce(found[0][1] if found else 0, op=MPI.MAX)
+    largest = comm.allreduce(longest[1], op=MPI.MAX)
     if comm.rank == 0:
         print(f"p = {comm.size}, h = 1/{n}, N = {disc.n_nodes} nodes ({2 * disc.n_nodes} DOFs)")
         print("\n".join(report))
-        print(f"largest array on any rank: length {largest} = {largest / disc.n_nodes:.3f} N")
+        print(f"longest array on any rank: length {largest} = {largest / disc.n_nodes:.3f} N")
 
 
 if __name__ == "__main__":
