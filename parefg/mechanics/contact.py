@@ -336,9 +336,7 @@ class ContactLaw(ContactFrame):
         local = self.normal_op.T @ sp.diags(closed) @ self.normal_op
         if self.has_friction:
             local = local + self.tangent_op.T @ sp.diags(stick) @ self.tangent_op
-        return owned_rows(
-            self.comm, local.tocsr(), self.dof_ranges, self.dof_columns, self.n_dofs
-        )
+        return owned_rows(self.comm, local.tocsr(), self.dof_ranges, self.dof_columns, self.n_dofs)
 
     def _penetration(self, un) -> np.ndarray:
         return np.maximum(un - self.gap, 0.0)  # (u_nu - s)^+
