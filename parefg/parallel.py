@@ -179,11 +179,10 @@ def owned_rows(
     """
     local = sp.csr_matrix(local)
     local.sum_duplicates()  # canonical CSR: sorted columns, duplicates added, zeros kept
-    if ids is not None:  # ascending ids: the columns stay sorted
+    if ids is not None:
         ids = np.asarray(ids, dtype=np.int64)
-        shape = (local.shape[0], local.shape[1] if n_cols is None else int(n_cols))
-        local = sp.csr_matrix((local.data, ids[local.indices], local.indptr), shape=shape)
-        local.has_canonical_format = True
+        local = global_columns(local, ids, local.shape[1] if n_cols is None else n_cols)
+        local.has_canonical_format = True  # ascending ids: the columns stay sorted
     rank = comm.rank
     start, stop = int(row_ranges[rank]), int(row_ranges[rank + 1])
     if comm.size == 1 and ids is None:
@@ -224,6 +223,15 @@ def owned_rows(
     if len(rows) == 0:
         return own
     return _merge_rows(own, rows, cols, data)
+
+
+def global_columns(local: sp.spmatrix, ids: np.ndarray, n_cols: int) -> sp.csr_matrix:
+    """``local`` with column j renamed ``ids[j]`` (ascending: sorted columns stay sorted),
+    of ``n_cols`` columns.  Not collective."""
+    local = sp.csr_matrix(local)
+    return sp.csr_matrix(
+        (local.data, ids[local.indices], local.indptr), shape=(local.shape[0], int(n_cols))
+    )
 
 
 def _merge_rows(own: sp.csr_matrix, rows, cols, data) -> sp.csr_matrix:

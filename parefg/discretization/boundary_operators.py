@@ -46,7 +46,7 @@ class BoundaryOperators:
     timings: dict[str, float]
     n_nodes: int  # global
     n_held: int  # the nodes the rank holds: the index space of the matrices built here
-    owned: slice  # this rank's own nodes among them
+    owned_nodes: slice  # this rank's own nodes among them
     n_dofs_local: int
     n_contact: int
     node_range: tuple[int, int]
@@ -330,7 +330,7 @@ class BoundaryOperators:
         """Append the owned nodes that each coarse-trace group's points reach (group >= 0),
         one block per group, to ``trace_blocks``.  Not collective."""
         start = self.node_range[0]
-        owned = reached_nodes(shape, group, self.n_held)[:, self.owned].tocsr()
+        owned = reached_nodes(shape, group, self.n_held)[:, self.owned_nodes].tocsr()
         blocks = np.split(owned.indices + start, owned.indptr[1:-1])  # one per group number
         self.trace_blocks.extend(block for block in blocks if len(block))  # others' are empty
 

@@ -19,7 +19,6 @@ import numpy as np
 from parefg.discretization import coarse_trace
 from parefg.discretization.neighbours import nodes_reaching_box
 from parefg.geometry.cloud import BoundaryCells, NodeCloud
-from parefg.geometry.distribute import held_positions
 from parefg.geometry.partition import Partition
 from parefg.parallel import alltoallv
 
@@ -124,8 +123,8 @@ def add_ghosts(
     complete = len(merged) == node_ranges[-1]
     node_ids = None if complete else merged
 
-    def moved(nodes: np.ndarray) -> np.ndarray:  # held positions, before -> after
-        return held_positions(node_ids, np.where(nodes >= 0, held[nodes], -1))
+    def moved(nodes: np.ndarray) -> np.ndarray:  # held positions, before -> after (-1 kept)
+        return np.where(nodes >= 0, old_at[nodes], -1)
 
     assert cloud.segment_cells is not None
     return NodeCloud(

@@ -23,7 +23,7 @@ from parefg.discretization.budget import Budget, check_problem_size
 from parefg.discretization.consistent_gradients import ConsistencySums, node_corrections
 from parefg.discretization.dirichlet import DirichletPart
 from parefg.discretization.domain_assembly import BlockPasses, value_rows
-from parefg.discretization.ghosts import add_ghosts, evaluation_box, owned_positions
+from parefg.discretization.ghosts import add_ghosts, evaluation_box
 from parefg.discretization.mls import MLS, MLSError, ShapeValues
 from parefg.discretization.point_gradients import PointGradients, sorted_gradients
 from parefg.discretization.point_set import PointSet, point_operator
@@ -33,7 +33,7 @@ from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.distribute import partition_on_root
 from parefg.geometry.gmsh_mesh import mesh_on_root
 from parefg.geometry.partition import Partition
-from parefg.parallel import owned_rows, raise_everywhere
+from parefg.parallel import global_columns, owned_rows, raise_everywhere
 from parefg.profiling import phase
 
 
@@ -173,7 +173,7 @@ class _Builder(BoundaryOperators):
         self.dof_ranges = 2 * self.node_ranges
         start, stop = self.node_ranges[comm.rank], self.node_ranges[comm.rank + 1]
         self.node_range = (int(start), int(stop))
-        self.owned = owned_positions(self.cloud, self.node_ranges, comm.rank)  # in the cloud
+        self.owned_nodes = self.cloud.run_of(*self.node_range)  # where they sit in the cloud
         self.n_nodes_local = int(stop - start)
         self.n_dofs_local = 2 * self.n_nodes_local
         # every matrix below is built on the held nodes' positions, mapped to global
@@ -369,11 +369,7 @@ class _Builder(BoundaryOperators):
         (2 n_nodes of them).  Not collective."""
         if self.dof_ids is None:
             return local
-        local = sp.csr_matrix(local)
-        return sp.csr_matrix(
-            (local.data, self.dof_ids[local.indices], local.indptr),
-            shape=(local.shape[0], 2 * self.n_nodes),
-        )
+        return global_columns(local, self.dof_ids, 2 * self.n_nodes)
 
     def _point_operator(self, csr) -> PETSc.Mat:
         """:func:`~parefg.discretization.point_set.point_operator` of CSR arrays whose
@@ -413,7 +409,7 @@ class _Builder(BoundaryOperators):
         output (every run writes its final step), else never.
         """
         start, stop = self.node_range
-        points = self.cloud.coords[self.owned]
+        points = self.cloud.coords[self.owned_nodes]
         shape = self._shape(points, gradients="von_mises" in self.scene.output.fields)
         with phase(self.timings, "assembly"):
             quadrature = Quadrature(
@@ -422,7 +418,7 @@ class _Builder(BoundaryOperators):
                 cell=np.arange(start, stop),
                 normals=None,
             )
-            rows = self.cloud.original_index[self.owned]
+            rows = self.cloud.original_index[self.owned_nodes]
             nodes = self._point_set(
                 quadrature, shape, gradients=True, keep_gradients=True, rows=rows
             )

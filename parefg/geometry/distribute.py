@@ -68,12 +68,12 @@ def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partiti
         coords=mine["coords"],
         spacing=mine["spacing"],
         original_index=mine["original_index"],
-        quads=held_positions(held_ids, mine["quads"]),
-        triangles=held_positions(held_ids, mine["triangles"]),
-        segments=held_positions(held_ids, segments),
+        quads=_held_positions(held_ids, mine["quads"]),
+        triangles=_held_positions(held_ids, mine["triangles"]),
+        segments=_held_positions(held_ids, segments),
         segment_part=segment_part,
         part_names=part_names,
-        segment_cells=BoundaryCells(cell=cell, corners=held_positions(held_ids, corners)),
+        segment_cells=BoundaryCells(cell=cell, corners=_held_positions(held_ids, corners)),
         node_ids=held_ids,
     )
     partition = Partition(
@@ -86,7 +86,7 @@ def partition_on_root(comm, cloud: NodeCloud | None) -> tuple[NodeCloud, Partiti
     return rank_cloud, partition
 
 
-def held_positions(node_ids: np.ndarray | None, nodes: np.ndarray) -> np.ndarray:
+def _held_positions(node_ids: np.ndarray | None, nodes: np.ndarray) -> np.ndarray:
     """``nodes`` (global numbers, -1 kept as -1) as positions in the ascending
     ``node_ids`` that hold them all (None: the numbers are the positions).  Not
     collective."""
