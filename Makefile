@@ -4,13 +4,14 @@
 VENV      := .venv
 PY        := $(VENV)/bin/python
 STAMP     := $(VENV)/.parefg-installed
-# Redone when a kernel source changes: the numba kernels compile into their cache once here.
+# Redone when a kernel source changes: the numba kernels compile into their cache, and
+# ahead of time into the environment (parefg.discretization.aot), once here.
 KERNELS   := $(VENV)/.parefg-kernels
 # Redone when the package or a built-in scene changes (their entries' keys hash the source).
 PREBUILT  := $(VENV)/.parefg-prebuilt
 DEB_PKGS  := python3-petsc4py python3-mpi4py python3-h5py-mpi python3-gmsh \
              python3-numpy python3-scipy python3-sympy python3-matplotlib \
-             python3-numba python3-venv python3-pip openmpi-bin
+             python3-numba python3-venv python3-pip openmpi-bin gcc python3-dev
 # Open MPI refuses root without these; CI and containers run as root.
 export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
@@ -28,8 +29,9 @@ setup: $(STAMP) $(KERNELS) $(PREBUILT)
 	@# Python would compile its 80 modules from source in every process (~0.09 s a run).
 	@$(PY) -m compileall -q parefg
 
-# ~35 s on a new machine, ~2 s when the cache is current; a first user run then does not
-# spend ~20 s compiling.
+# ~50 s on a new machine (~15 s of it the ahead-of-time module), ~3 s when the cache is
+# current; a first user run then does not spend ~20 s compiling, nor any run ~0.35 s
+# importing numba.
 $(KERNELS): $(STAMP) $(wildcard parefg/discretization/*.py) scripts/setup/warm_kernels.py
 	$(PY) scripts/setup/warm_kernels.py
 	@touch $@

@@ -20,19 +20,17 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from parefg.discretization import assembly_numpy, backends
+from parefg.discretization import aot, assembly_numpy, backends
 from parefg.discretization.mls import ShapeValues
 
 
 def kernels_for(n_nodes: int):
-    """The module of assembly kernels for a problem of ``n_nodes`` global nodes: the numba
-    one (:mod:`~parefg.discretization.assembly_kernels`, imported here, on first use) or
-    the numpy one (:mod:`~parefg.discretization.assembly_numpy`); see
+    """The assembly kernels for a problem of ``n_nodes`` global nodes: the numba ones
+    (:mod:`~parefg.discretization.assembly_kernels`, through :mod:`.aot`) or the numpy
+    ones (:mod:`~parefg.discretization.assembly_numpy`); see
     :mod:`parefg.discretization.backends`."""
     if backends.choose(n_nodes) == "numba":
-        from parefg.discretization import assembly_kernels  # imports numba
-
-        return assembly_kernels
+        return aot.kernels("assembly_kernels")  # compiled ahead of time, else numba's JIT
     return assembly_numpy
 
 

@@ -1,24 +1,28 @@
-"""Which kernels compute MLS and the assembly: numpy for small problems, numba for large ones.
+"""Which kernels compute MLS and the assembly: numba's, compiled ahead of time where
+``make setup`` installed them, else numpy for small problems and numba's JIT for large ones.
 
 Both backends give the same neighbour lists, CSR patterns and values to round-off
 (tests/discretization/test_mls.py, test_assembly_backends.py).  numba's kernels are faster
-per point, but a process that uses them first pays importing numba (~0.17 s) and loading
-its cached machine code (~0.3 s for the kernels of a run): on a small problem that is
-most of the run.  So the default is chosen by the global node count, which every rank
-knows, so that all ranks (and 1 rank against 2) use the same kernels: numba from
-:data:`NUMBA_MIN_NODES` nodes on (where it is installed and knows the weight), numpy
-below.  The threshold is the crossover of whole runs measured by
-scripts/bench/bench_backends.py.
+per point.  Compiled ahead of time (:mod:`.aot`) they load in a millisecond, so they are
+the default at every size.  Without that module a process that uses them first pays
+importing numba (~0.17 s) and loading its cached machine code (~0.3 s for the kernels of
+a run): on a small problem that is most of the run.  The default is then chosen by the
+global node count, which every rank knows, so that all ranks (and 1 rank against 2) use
+the same kernels: numba from :data:`NUMBA_MIN_NODES` nodes on (where it is installed and
+knows the weight), numpy below.  The threshold is the crossover of whole runs measured by
+scripts/bench/bench_backends.py.  (Ranks of one installation agree on whether the
+compiled module is there; ranks that did not would differ by round-off only.)
 
 The environment variable ``PAREFG_KERNELS`` (``numba`` or ``numpy``) overrides the
 choice, e.g. to compare the backends on one scene.  numba is imported only by the
-modules of its kernels, and those only when a numba kernel is first needed.
+modules of its kernels, and those only when a kernel runs by the JIT.
 """
 
 import functools
 import importlib.util
 import os
 
+from parefg.discretization import aot
 from parefg.errors import InputError
 
 # Nodes from which numba's kernels win a whole run, one-off costs included.  Measured by
@@ -56,6 +60,6 @@ def choose(n_nodes: int, compiled: bool = True) -> str:
     name = forced()
     if name is not None:
         return name if compiled else "numpy"
-    if compiled and numba_installed() and n_nodes >= NUMBA_MIN_NODES:
+    if compiled and (aot.available() or (numba_installed() and n_nodes >= NUMBA_MIN_NODES)):
         return "numba"
     return "numpy"

@@ -65,10 +65,11 @@ def _local_basis(offsets: np.ndarray, radius: np.ndarray, degree: int):
 
 
 def _kernels():
-    """The compiled kernels, imported on first use (numba's import costs ~0.2 s)."""
-    from parefg.discretization import consistent_kernels
+    """The compiled kernels: ahead of time where installed, else numba's JIT (imported on
+    first use: numba's import costs ~0.2 s)."""
+    from parefg.discretization import aot
 
-    return consistent_kernels
+    return aot.kernels("consistent_kernels")
 
 
 def _entries(shape: ShapeValues, start: int, stop: int):

@@ -96,65 +96,6 @@ if numba is not None:
 # ----------------------------------------------------------------------------- neighbour search
 
 
-def build_cells(nodes, radius, classes, reach):
-    """One uniform cell list per radius class, concatenated into flat arrays.
-
-    Class c holds the nodes ``classes == c`` (labels 0 .. n_classes - 1), all of support
-    radius below ``reach[c]``.  Its cells are at least that large, so the nodes of class c
-    that cover a point lie in the (at most) 3 x 3 cells around it: a point scans the area
-    of each class's own largest support, not that of the cloud's.  Cell k = i * shape[c, 1]
-    + j of class c holds the slots ``start[first_cell[c] + k]:start[first_cell[c] + k + 1]``
-    of the cell-ordered arrays, so a row of cells is one run of slots.
-
-    Returns
-    -------
-    origin : ndarray, shape (n_classes, 2)
-    cell_size : ndarray, shape (n_classes,)
-        At least the reach; enlarged so that there are at most ~4 cells per node.
-    reach : ndarray, shape (n_classes,)
-    shape : ndarray of int64, shape (n_classes, 2)
-        Number of cells per direction.
-    first_cell : ndarray of int64, shape (n_classes + 1,)
-    start : ndarray of int64, shape (n_cells + 1,)
-    cell_nodes : ndarray of int64, shape (n_nodes,)
-        The node in each slot.
-    cell_coords, cell_radius : ndarray, shape (n_nodes, 2) and (n_nodes,)
-        Its coordinates and radius, in slot order (the scan reads them in sequence).
-    """
-    n_classes = len(reach)
-    origin, cell_size = np.zeros((n_classes, 2)), np.zeros(n_classes)
-    shape = np.zeros((n_classes, 2), dtype=np.int64)
-    starts, members, offset = [], [], 0
-    for c in range(n_classes):  # a Python loop over the few classes, not over nodes
-        member = np.flatnonzero(classes == c)
-        origin[c], cell_size[c], shape[c], start, order = _uniform_cells(nodes[member], reach[c])
-        starts.append(offset + start[:-1])
-        members.append(member[order])
-        offset += len(member)
-    first_cell = np.zeros(n_classes + 1, dtype=np.int64)
-    first_cell[1:] = np.cumsum(shape[:, 0] * shape[:, 1])
-    start = np.concatenate([*starts, [offset]]).astype(np.int64)
-    cell_nodes = np.concatenate(members)
-    reach = np.ascontiguousarray(reach, dtype=float)
-    coords, radius = np.ascontiguousarray(nodes[cell_nodes]), radius[cell_nodes]
-    return origin, cell_size, reach, shape, first_cell, start, cell_nodes, coords, radius
-
-
-def _uniform_cells(nodes, cell_size):
-    """(origin, cell size, shape, start, order) of a uniform cell list of the nodes:
-    cell k = i * shape[1] + j holds nodes[order[start[k]:start[k + 1]]]."""
-    origin = nodes.min(axis=0)
-    extent = nodes.max(axis=0) - origin
-    cell_size = max(cell_size, np.sqrt(extent[0] * extent[1] / (4.0 * len(nodes))))
-    shape = (np.floor(extent / cell_size) + 1).astype(np.int64)  # (2,)
-    ij = np.minimum(((nodes - origin) / cell_size).astype(np.int64), shape - 1)  # (n, 2)
-    cell = ij[:, 0] * shape[1] + ij[:, 1]
-    order = np.argsort(cell, kind="stable").astype(np.int64)
-    start = np.zeros(shape[0] * shape[1] + 1, dtype=np.int64)
-    start[1:] = np.cumsum(np.bincount(cell, minlength=shape[0] * shape[1]))
-    return origin, float(cell_size), shape, start, order
-
-
 @_jit
 def _cell_range(x, reach, origin, cell_size, n_cells):
     """First and one-past-last cell index along one axis that can hold nodes within reach."""
@@ -243,16 +184,6 @@ def neighbour_lists(points, cells, width):
 
 
 # ----------------------------------------------------------------------------- shape functions
-
-
-def basis_size(degree):
-    """Tuple of n_basis zeros: the kernels' compile-time stand-in for the degree.
-
-    numba types a tuple with its length, so ``len(size)`` is a constant inside the
-    kernel; it compiles one kernel per degree with the small loops over basis terms
-    unrolled (about three times faster than a run-time n_basis).
-    """
-    return (0.0,) * ((degree + 1) * (degree + 2) // 2)
 
 
 @_inlined

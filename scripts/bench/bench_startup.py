@@ -2,7 +2,9 @@
 
 Tables, all from one run of this script (same machine load), for this tree and, with
 ``--baseline PYTHON``, for another checkout's interpreter (e.g. /work/main/.venv/bin/python)
-in interleaved runs, with the ratio this / baseline:
+or, with ``--baseline-env NAME=VALUE``, for this tree with one variable of the environment
+set (``PAREFG_AOT_DIR=``: without the kernels compiled ahead of time), in interleaved
+runs, with the ratio this / baseline:
 
 1. Wall and CPU time of whole processes (median of --repeats): ``python -c pass``, the import
    floor of a run (numpy, scipy.sparse, sympy, numba, h5py, gmsh, petsc4py initialized,
@@ -19,8 +21,9 @@ in interleaved runs, with the ratio this / baseline:
    imports a run may need, importing gmsh and meshing the default square (the ``mesh``
    phase), and importing numba, its first cached kernel (numba's one-off
    initialization) and the next one (the ``neighbours`` phase is the first kernel call of
-   a run from parefg.discretization.backends.NUMBA_MIN_NODES nodes on; the default scene
-   is smaller and imports no numba).
+   a run by the JIT from parefg.discretization.backends.NUMBA_MIN_NODES nodes on), and
+   loading the kernels compiled ahead of time (parefg.discretization.aot) with their first
+   call, which replace all of numba's where ``make setup`` built them.
    This tree only.
 
 The user cache of the measured runs is a temporary directory (warmed by one run per
@@ -28,7 +31,7 @@ tree before the timing).  Writes results/bench_startup.csv (one row per measured
 and tree).  The commands run as ``python -m parefg.cli`` of the given interpreter.
 
     .venv/bin/python scripts/bench/bench_startup.py [--repeats 5] \
-        [--baseline /work/main/.venv/bin/python]
+        [--baseline /work/main/.venv/bin/python | --baseline-env PAREFG_AOT_DIR=]
 """
 
 import collections
@@ -108,16 +111,23 @@ tic = clock()
 import numba
 print("numba import", clock() - tic)
 from parefg.discretization import mls_kernels
-from parefg.discretization.neighbours import radius_classes
+from parefg.discretization.mls import basis_size
+from parefg.discretization.neighbours import build_cells, radius_classes
 radius = np.full(len(cloud.coords), 3.2 * 0.0625)
-cells = mls_kernels.build_cells(cloud.coords, radius, *radius_classes(radius))
+cells = build_cells(cloud.coords, radius, *radius_classes(radius))
 tic = clock()
 neighbours, mask = mls_kernels.neighbour_lists(cloud.coords, cells, 64)
 print("numba: first cached kernel (initialization)", clock() - tic)
 tic = clock()
-size = mls_kernels.basis_size(2)
+size = basis_size(2)
 mls_kernels.shape_functions(cloud.coords, cloud.coords, radius, 0, size, neighbours, mask, True)
 print("numba: next cached kernel", clock() - tic)
+tic = clock()
+from parefg.discretization import aot
+compiled = aot.kernels("mls_kernels")
+compiled.neighbour_lists(cloud.coords, cells, 64)
+print("kernels compiled ahead of time: load and first call", clock() - tic)
+assert aot.available() and not aot.misses, "no kernels compiled ahead of time: make setup"
 """
 
 
@@ -160,17 +170,18 @@ def samples():
     return collections.defaultdict(list)
 
 
-def measure(trees: dict[str, str], repeats: int, workdir: Path) -> dict:
-    """Samples by table, tree and row: tree label -> interpreter, runs interleaved."""
+def measure(trees: dict[str, tuple[str, dict]], repeats: int, workdir: Path) -> dict:
+    """Samples by table, tree and row: tree label -> (interpreter, environment), runs
+    interleaved."""
     tables = ("process, wall", "process, CPU (user + sys)", "imports", "phases", "pieces")
     result = {table: {tree: samples() for tree in trees} for table in tables}
-    for tree, python in trees.items():  # warm the scene cache (and numba's) of each tree
-        timed_run([python, "-m", "parefg.cli", *RUN_SQUARE], workdir / f"warm-{tree}")
+    for tree, (python, tree_env) in trees.items():  # warm the scene cache of each tree
+        timed_run([python, "-m", "parefg.cli", *RUN_SQUARE], workdir / f"warm-{tree}", tree_env)
     for r in range(repeats):
-        for tree, python in trees.items():
+        for tree, (python, tree_env) in trees.items():
             for i, (label, (command, env)) in enumerate(commands(python).items()):
                 out = workdir / f"{tree}-{r}-{i}" if "run square" in label else None
-                wall, cpu, _ = timed_run(command, out, env)
+                wall, cpu, _ = timed_run(command, out, {**tree_env, **env})
                 result["process, wall"][tree][label].append(wall)
                 result["process, CPU (user + sys)"][tree][label].append(cpu)
                 if label == RUN_LABEL:
@@ -182,6 +193,7 @@ def measure(trees: dict[str, str], repeats: int, workdir: Path) -> dict:
             _, _, stderr = timed_run(
                 [python, "-X", "importtime", "-m", "parefg.cli", *RUN_SQUARE],
                 workdir / f"i-{tree}-{r}",
+                tree_env,
             )
             per_package = import_times(stderr)
             for package, seconds in per_package.items():
@@ -227,10 +239,19 @@ def table(title: str, by_tree: dict, limit: int | None = None) -> list[dict]:
 
 def main():
     parser = benchlib.parser(__doc__, repeats=5)
-    parser.add_argument("--baseline", help="python of the checkout to compare with")
+    baseline = parser.add_mutually_exclusive_group()
+    baseline.add_argument("--baseline", help="python of the checkout to compare with")
+    baseline.add_argument(
+        "--baseline-env", metavar="NAME=VALUE", help="compare with this tree run with NAME=VALUE"
+    )
     args = parser.parse_args()
-    trees = {"baseline": args.baseline} if args.baseline else {}
-    trees["this tree"] = sys.executable
+    trees: dict[str, tuple[str, dict]] = {}
+    if args.baseline:
+        trees["baseline"] = (args.baseline, {})
+    elif args.baseline_env:
+        name, _, value = args.baseline_env.partition("=")
+        trees[args.baseline_env] = (sys.executable, {name: value})
+    trees["this tree"] = (sys.executable, {})
     with tempfile.TemporaryDirectory() as tmp:
         os.environ["PAREFG_CACHE_DIR"] = str(Path(tmp) / "cache")  # the runs' scene cache
         os.environ.pop("PAREFG_SCENE_CACHE", None)

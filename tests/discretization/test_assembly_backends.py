@@ -18,7 +18,7 @@ import scipy.sparse as sp
 from conftest import mpi_env
 from mpi4py import MPI
 
-from parefg.discretization import assembly_numpy, backends
+from parefg.discretization import aot, assembly_numpy, backends
 from parefg.discretization.assembly import Coupling
 from parefg.discretization.mls import MLS
 from parefg.discretization.operators import build_discretization
@@ -151,6 +151,8 @@ def test_discretizations_of_both_backends_have_the_same_owned_rows(monkeypatch, 
 
 
 def test_backend_is_chosen_by_the_global_node_count(monkeypatch):
+    # Without the kernels compiled ahead of time (with them: numba at every size).
+    monkeypatch.setenv(aot.ENVIRONMENT, "")
     monkeypatch.delenv(backends.ENVIRONMENT, raising=False)
     assert backends.choose(backends.NUMBA_MIN_NODES - 1) == "numpy"
     assert backends.choose(backends.NUMBA_MIN_NODES) == "numba"
@@ -177,7 +179,9 @@ print(sorted(name for name in sys.modules if name.split(".")[0] == "numba"
 
 @pytest.mark.serial_only
 def test_a_small_build_does_not_import_numba():
+    # Without the kernels compiled ahead of time (with them see test_aot.py).
     env = {k: v for k, v in mpi_env().items() if k != backends.ENVIRONMENT}
+    env[aot.ENVIRONMENT] = ""
     result = subprocess.run(
         [sys.executable, "-c", SMALL_RUN.format(limit=backends.NUMBA_MIN_NODES)],
         capture_output=True, text=True, env=env, timeout=300,

@@ -13,7 +13,7 @@ import sys
 import pytest
 from conftest import mpi_env
 
-from parefg.discretization import assembly_kernels, backends, mls_kernels
+from parefg.discretization import aot, assembly_kernels, backends, mls_kernels
 
 try:
     import numba
@@ -51,7 +51,8 @@ for module in (mls_kernels, assembly_kernels):
 def _compilations() -> dict[str, int]:
     """Kernel -> compilations in a fresh process that uses the kernels as a run does."""
     # A problem this small takes the numpy kernels by default (backends.py): force numba.
-    env = mpi_env() | {backends.ENVIRONMENT: "numba"}
+    # And by the JIT: the kernels compiled ahead of time would not touch its cache.
+    env = mpi_env() | {backends.ENVIRONMENT: "numba", aot.ENVIRONMENT: ""}
     result = subprocess.run(
         [sys.executable, "-c", PROBE], capture_output=True, text=True, env=env, timeout=300
     )

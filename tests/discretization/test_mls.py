@@ -369,7 +369,7 @@ def test_numba_kernel_results_do_not_depend_on_the_lane_group(degree):
     points[mls_kernels.LANES + 2] = (-0.5 * SUPPORT[degree] * H, 0.5)  # outside the cloud
     neighbours, mask = mls.find_neighbours(points)
     mask[mls_kernels.LANES + 2, 1:] = False  # one neighbour: A is singular
-    size = mls_kernels.basis_size(degree)
+    size = mls_module.basis_size(degree)
     arguments = (mls.nodes, mls.support_radius, mls.weight.code, size)
     together = mls_kernels.shape_functions(points, *arguments, neighbours, mask, True)
     alone = [
