@@ -154,15 +154,17 @@ def _load(path: Path) -> dict[str, dict]:
         (library,) = path.glob(f"{MODULE_NAME}.*")
         loader = importlib.machinery.ExtensionFileLoader(MODULE_NAME, str(library))
         spec = importlib.util.spec_from_file_location(MODULE_NAME, library, loader=loader)
-        assert spec is not None
+        if spec is None:
+            return {}
         module = importlib.util.module_from_spec(spec)
         loader.exec_module(module)
-    except (OSError, ValueError, ImportError, AssertionError):
-        return {}  # none, or not readable: the JIT runs every kernel
-    return {
-        kernel: {_freeze(key): getattr(module, exported) for key, exported in variants}
-        for kernel, variants in table.items()
-    }
+        return {
+            kernel: {_freeze(key): getattr(module, exported) for key, exported in variants}
+            for kernel, variants in table.items()
+        }
+    except (OSError, ValueError, ImportError, AttributeError, TypeError):
+        # none, unreadable, or a table that does not fit the module: the JIT runs all
+        return {}
 
 
 def available() -> bool:

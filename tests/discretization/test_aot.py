@@ -120,6 +120,23 @@ def test_no_module_for_another_source(tmp_path, monkeypatch):
     assert backends.choose(backends.NUMBA_MIN_NODES - 1) == "numpy"
 
 
+@pytest.mark.parametrize(
+    "table", ["not json", "[1, 2]", '{"mls_kernels.shape_functions": [[[], "missing"]]}']
+)
+def test_a_damaged_module_directory_is_no_module(tmp_path, monkeypatch, table):
+    # A table that is not JSON, not a mapping, or names functions the module lacks (here
+    # the installed module copied beside it): no traceback, the JIT runs every kernel.
+    installed = aot.directory()
+    assert installed is not None
+    damaged = tmp_path / aot.digest()
+    damaged.mkdir()
+    for library in installed.glob(f"{aot.MODULE_NAME}.*"):
+        (damaged / library.name).write_bytes(library.read_bytes())
+    (damaged / aot.TABLE_NAME).write_text(table)
+    monkeypatch.setenv(aot.ENVIRONMENT, str(tmp_path))
+    assert not aot.available()
+
+
 # A build of a square above the numba threshold, then the numba modules it loaded.
 LARGE_BUILD = """
 import sys
