@@ -8,6 +8,7 @@ exception on any rank aborts every rank (no hang under mpirun).
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 
@@ -167,5 +168,21 @@ def _dispatch(comm, args) -> int:
     return getattr(commands, args.command)(comm, args)
 
 
+def program() -> None:
+    """The ``parefg`` program: :func:`main` on the command line, then exit with its code.
+
+    Before exiting, every object is frozen out of the garbage collector: at interpreter
+    shutdown Python otherwise runs full collections over every object still alive (the
+    modules of numpy, scipy, h5py, PETSc and the run's own), ~0.23 s of a 0.8 s default run
+    measured.  Nothing the run wrote depends on them: its HDF5 files are closed, the XDMF
+    index is written by unbuffered descriptors, summary.json is closed, and the exit
+    handlers (MPI's and PETSc's finalization, the temporary directories) still run.  Only
+    here, where the process ends: a caller of :func:`main` keeps its collector.
+    """
+    code = main()
+    gc.freeze()
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    program()
