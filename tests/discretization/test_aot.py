@@ -1,12 +1,13 @@
 """The kernels compiled ahead of time (:mod:`parefg.discretization.aot`) are the JIT's.
 
 ``make setup`` compiles every signature the JIT compiled on its warm-up scenes into one
-extension module.  Here: it is installed for this source; a run loads it without
-importing numba and never falls back to the JIT; whole builds through it are bit for bit
-those of numba's JIT, serially and under mpirun -n 2; a call whose argument types it was
-not compiled for (another dtype, a strided view, a read-only array) goes to the JIT,
-which gives the right answer; and the key a call is matched on is numba's own type of
-each argument.
+extension module.  Here: it is installed for this source; a build of any size loads it
+without importing numba and never falls back to the JIT (without it, a build below the
+node-count threshold runs numpy's kernels and imports no numba either); whole builds
+through it are bit for bit those of numba's JIT, serially and under mpirun -n 2; a call
+whose argument types it was not compiled for (another dtype, a strided view, a read-only
+array) goes to the JIT, which gives the right answer; a damaged module directory is no
+module; and the key a call is matched on is numba's own type of each argument.
 """
 
 import subprocess
@@ -137,26 +138,37 @@ def test_a_damaged_module_directory_is_no_module(tmp_path, monkeypatch, table):
     assert not aot.available()
 
 
-# A build of a square above the numba threshold, then the numba modules it loaded.
-LARGE_BUILD = """
+# A build of the square, then the numba modules it loaded.
+BUILD = """
 import sys
 from mpi4py import MPI
 from parefg.discretization import aot
 from parefg.discretization.operators import build_discretization
 from parefg.scene.loader import load_scene
-disc = build_discretization(MPI.COMM_WORLD, load_scene("square", ["discretization.h=0.03"]))
-assert disc.n_nodes >= {limit}, disc.n_nodes
+disc = build_discretization(MPI.COMM_WORLD, load_scene("square", {overrides!r}))
+assert (disc.n_nodes >= {limit}) == {large}, disc.n_nodes
 assert aot.misses == {{}}, aot.misses
-print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")))
+print(sorted(name for name in sys.modules if name.split(".")[0] in ("numba", "llvmlite")
+             or name.endswith(("mls_kernels", "assembly_kernels"))))
 """
 
 
 @pytest.mark.serial_only
-def test_a_build_of_any_size_loads_neither_numba_nor_llvmlite():
+@pytest.mark.parametrize(
+    "large,module",
+    [(True, None), (False, ""), (False, None)],
+    ids=["large-compiled", "small-without-module", "small-compiled"],
+)
+def test_a_build_loads_no_numba(large, module):
+    # With the compiled module at any size; without it below the node-count threshold,
+    # where the numpy kernels run (above it the JIT does).
     env = {k: v for k, v in mpi_env().items() if k != backends.ENVIRONMENT}
+    if module is not None:
+        env[aot.ENVIRONMENT] = module
+    overrides = ["discretization.h=0.03"] if large else []
+    probe = BUILD.format(overrides=overrides, limit=backends.NUMBA_MIN_NODES, large=large)
     result = subprocess.run(
-        [sys.executable, "-c", LARGE_BUILD.format(limit=backends.NUMBA_MIN_NODES)],
-        capture_output=True, text=True, env=env, timeout=300,
-    )  # fmt: skip
+        [sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=300
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.split("\n")[-2] == "[]"

@@ -6,16 +6,12 @@ the numba kernels of :mod:`parefg.discretization.assembly_kernels`
 node lists, pairs and CSR patterns (identical) and the same Gram values to round-off
 (1e-13 of the largest entry, as test_assembly.py asks of either against scipy); whole
 discretizations built with either backend must have the same owned rows of M and K,
-serially and under mpirun -n 2.  A small run must not import numba at all.
+serially and under mpirun -n 2.  (Which modules a build imports: test_aot.py.)
 """
-
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from conftest import mpi_env
 from mpi4py import MPI
 
 from parefg.discretization import aot, assembly_numpy, backends
@@ -162,29 +158,3 @@ def test_backend_is_chosen_by_the_global_node_count(monkeypatch):
     monkeypatch.setenv(backends.ENVIRONMENT, "fortran")
     with pytest.raises(Exception, match=backends.ENVIRONMENT):
         backends.choose(10)
-
-
-# A build of the default scene, then the numba modules loaded in this process.
-SMALL_RUN = """
-import sys
-from mpi4py import MPI
-from parefg.discretization.operators import build_discretization
-from parefg.scene.loader import load_scene
-disc = build_discretization(MPI.COMM_WORLD, load_scene("square", []))
-assert disc.n_nodes < {limit}, disc.n_nodes
-print(sorted(name for name in sys.modules if name.split(".")[0] == "numba"
-             or name.endswith(("mls_kernels", "assembly_kernels"))))
-"""
-
-
-@pytest.mark.serial_only
-def test_a_small_build_does_not_import_numba():
-    # Without the kernels compiled ahead of time (with them see test_aot.py).
-    env = {k: v for k, v in mpi_env().items() if k != backends.ENVIRONMENT}
-    env[aot.ENVIRONMENT] = ""
-    result = subprocess.run(
-        [sys.executable, "-c", SMALL_RUN.format(limit=backends.NUMBA_MIN_NODES)],
-        capture_output=True, text=True, env=env, timeout=300,
-    )  # fmt: skip
-    assert result.returncode == 0, result.stderr
-    assert result.stdout.split("\n")[-2] == "[]"
