@@ -13,7 +13,8 @@ intermediate.  The pattern (:func:`coupling_pattern`) holds exactly the pairs (I
 that share a point, so it does not depend on how the points are split over ranks.
 
 Nothing here is collective.  numba compiles on first use and caches the machine code
-next to this file (``cache=True``).
+next to this file (``cache=True``); ``make setup`` also compiles the kernels called from
+Python ahead of time, and runs call them through :mod:`.aot` without importing numba.
 """
 
 import numpy as np

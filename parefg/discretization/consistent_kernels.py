@@ -2,8 +2,9 @@
 
 The same sums and corrected gradients as the numpy code there, in one pass over the
 (point, neighbour) entries instead of arrays of basis products per entry (which cost
-4x the MLS evaluation itself at m = 3).  Nothing here is collective; imported only
-when a VCI run uses the numba backend, and cached next to this file (``cache=True``).
+4x the MLS evaluation itself at m = 3).  Nothing here is collective; cached next to this
+file (``cache=True``), compiled ahead of time by ``make setup`` and called through
+:mod:`.aot` (this module is imported only where that module is missing).
 """
 
 import numba

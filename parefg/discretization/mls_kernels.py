@@ -20,7 +20,9 @@ backend's, so no result depends on the grouping.
 
 Nothing here is collective.  numba compiles on first use and caches the
 machine code next to this file (``cache=True``), so only the first process
-after an edit pays the compilation.
+after an edit pays the compilation; ``make setup`` also compiles the kernels
+called from Python ahead of time, which runs call through :mod:`.aot`
+without importing numba.
 """
 
 import numpy as np

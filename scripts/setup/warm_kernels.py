@@ -10,7 +10,7 @@ cells) and the impact scene (a body in flight), with numba forced
 (``PAREFG_KERNELS=numba``, the tiny clouds would otherwise use the numpy kernels) and by
 its JIT (``PAREFG_AOT_DIR`` empty).  Then it compiles every signature the JIT compiled
 into one extension module ahead of time (:mod:`parefg.discretization.aot`), which later
-runs load without importing numba; ~1 min, once per change of the kernels' sources.
+runs load without importing numba (~15 s, once per change of the kernels' sources).
 
     .venv/bin/python scripts/setup/warm_kernels.py
 """
