@@ -141,14 +141,23 @@ def _freeze(key) -> tuple | str:
 
 
 def _compiled() -> dict[str, dict]:
-    """{"module.kernel": {argument key: compiled function}}; empty where there is no module."""
+    """{"module.kernel": {argument key: compiled function}}; empty where there is no module.
+
+    Looked up by the environment's setting (a string: cheap to hash on every kernel call,
+    unlike the Path it names).
+    """
+    return _loaded(os.environ.get(ENVIRONMENT))
+
+
+@functools.cache
+def _loaded(setting: str | None) -> dict[str, dict]:
+    """:func:`_compiled` for one value of ``$PAREFG_AOT_DIR``, loaded once per process."""
     path = directory()
     return {} if path is None else _load(path)
 
 
-@functools.cache
 def _load(path: Path) -> dict[str, dict]:
-    """:func:`_compiled` of the module in ``path``, loaded once per process."""
+    """The table of the module in ``path``; empty where it is missing or damaged."""
     try:
         table = json.loads((path / TABLE_NAME).read_text())
         (library,) = path.glob(f"{MODULE_NAME}.*")
