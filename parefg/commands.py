@@ -53,6 +53,8 @@ def info(comm, args) -> int:
     from mpi4py import MPI
     from petsc4py import PETSc
 
+    from parefg.discretization import backends
+
     if comm.rank == 0:
         config = petsc4py.get_config()
         packages = [
@@ -73,6 +75,7 @@ def info(comm, args) -> int:
             ("ranks", str(comm.size)),
             ("h5py", f"{h5py.__version__} (mpi: {h5py.get_config().mpi})"),
             ("gmsh", gmsh.__version__),
+            ("kernels", backends.describe()),
         ]
         for key, value in rows:
             print(f"{key:<16} {value}")

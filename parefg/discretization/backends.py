@@ -63,3 +63,19 @@ def choose(n_nodes: int, compiled: bool = True) -> str:
     if compiled and (aot.available() or (numba_installed() and n_nodes >= NUMBA_MIN_NODES)):
         return "numba"
     return "numpy"
+
+
+def describe() -> str:
+    """One line for ``parefg info``: which kernels a run uses (as :func:`choose` does)."""
+    name = forced()
+    if name == "numpy":
+        return f"numpy ({ENVIRONMENT}=numpy)"
+    if aot.available():
+        source = f"numba's, compiled ahead of time ({aot.directory()})"
+        return source + (f" ({ENVIRONMENT}=numba)" if name else ", at every size")
+    if not numba_installed():
+        return "numpy (numba is not installed)"
+    source = "numba's JIT (nothing compiled ahead of time for this source: make setup)"
+    return source + (
+        f" ({ENVIRONMENT}=numba)" if name else f" from {NUMBA_MIN_NODES} nodes, numpy below"
+    )

@@ -101,6 +101,15 @@ def test_info_prints_petsc_version():
     assert re.search(rf"^petsc\s+{re.escape(version)}\b", result.stdout, re.M), result.stdout
 
 
+def test_info_names_the_kernels_a_run_uses():
+    from parefg.discretization import aot
+
+    result = run_parefg(["info"])
+    assert result.returncode == 0, result.stderr
+    (line,) = [row for row in result.stdout.splitlines() if row.startswith("kernels")]
+    assert "compiled ahead of time" in line and str(aot.directory()) in line, line
+
+
 def test_two_rank_run_writes_contract_summary(tmp_path):
     out = tmp_path / "run"
     result = run_parefg(["run", "square", "--set", "time.dt=0.1", "--out", str(out)], ranks=2)
