@@ -62,8 +62,14 @@ def default_root() -> Path:
 
 def root() -> Path | None:
     """The directory of compiled modules (``$PAREFG_AOT_DIR``; empty: none)."""
-    value = os.environ.get(ENVIRONMENT, str(default_root()))
-    return Path(value) if value else None
+    return _root_of(os.environ.get(ENVIRONMENT))
+
+
+def _root_of(setting: str | None) -> Path | None:
+    """:func:`root` for one value of ``$PAREFG_AOT_DIR`` (None: unset)."""
+    if setting is None:
+        return default_root()
+    return Path(setting) if setting else None
 
 
 def _cpu_flags() -> str:
@@ -152,8 +158,8 @@ def _compiled() -> dict[str, dict]:
 @functools.cache
 def _loaded(setting: str | None) -> dict[str, dict]:
     """:func:`_compiled` for one value of ``$PAREFG_AOT_DIR``, loaded once per process."""
-    path = directory()
-    return {} if path is None else _load(path)
+    base = _root_of(setting)
+    return {} if base is None else _load(base / digest())
 
 
 def _load(path: Path) -> dict[str, dict]:

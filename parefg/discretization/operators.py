@@ -291,11 +291,9 @@ class _Builder(BoundaryOperators):
         """
         comm, mls, n_local, n_nodes = self.comm, self.mls, self.n_nodes_local, self.n_nodes
 
-        def rebuild(points):
-            indptr, indices, data = value_rows(mls, points, bounds)
-            return point_operator(comm, (indptr, mls.global_ids(indices), data), n_local, n_nodes)
-
-        return rebuild
+        return lambda points: _held_point_operator(
+            comm, mls, value_rows(mls, points, bounds), n_local, n_nodes
+        )
 
     def _domain_rule(self) -> Callable[[], Quadrature]:
         """A function computing the Gauss points of this rank's cells (the same numbers at
@@ -372,11 +370,8 @@ class _Builder(BoundaryOperators):
         return global_columns(local, self.dof_ids, 2 * self.n_nodes)
 
     def _point_operator(self, csr) -> PETSc.Mat:
-        """:func:`~parefg.discretization.point_set.point_operator` of CSR arrays whose
-        columns are held nodes' positions.  Collective."""
-        indptr, indices, data = csr
-        csr = (indptr, self.mls.global_ids(indices), data)
-        return point_operator(self.comm, csr, self.n_nodes_local, self.n_nodes)
+        """:func:`_held_point_operator` of this rank's MLS.  Collective."""
+        return _held_point_operator(self.comm, self.mls, csr, self.n_nodes_local, self.n_nodes)
 
     def _point_set(
         self, quadrature, shape, gradients=False, keep_gradients=False, **extra
@@ -441,3 +436,10 @@ def build_discretization(comm, scene, budget: Budget | None = None) -> Discretiz
     if budget is None:
         budget = check_problem_size(comm, scene)
     return _Builder(comm, scene, budget).build()
+
+
+def _held_point_operator(comm, mls: MLS, csr, n_local: int, n_nodes: int) -> PETSc.Mat:
+    """:func:`~parefg.discretization.point_set.point_operator` of CSR arrays (indptr,
+    indices, data) whose columns are positions in ``mls``'s held nodes.  Collective."""
+    indptr, indices, data = csr
+    return point_operator(comm, (indptr, mls.global_ids(indices), data), n_local, n_nodes)

@@ -101,12 +101,27 @@ class PointGradients:
         return self._reached
 
     def _nodal_values(self, comm, u: PETSc.Vec) -> np.ndarray:
-        """:func:`_nodal_values` at the nodes the points reach (all nodes on one rank), by
-        held node.  Collective."""
+        """u's nodal values (n_held, 2) by held node: every node's on one rank, else the
+        rows of the nodes the points reach, gathered from their owners (the other rows are
+        0 and never read).  Collective.
+
+        By held node rather than by reached node, so that the blocks read their
+        neighbours' rows with a plain gather (a search per entry cost 0.44 s of a 2-rank
+        error norm at 80802 DOFs).
+        """
         if comm.size == 1:
-            return _nodal_values(u, None, None, len(self.mls.nodes))
+            return u.getArray(readonly=True).reshape(-1, 2)
         reached = self._reached_nodes()
-        return _nodal_values(u, reached, self.mls.global_ids(reached), len(self.mls.nodes))
+        reached_ids = self.mls.global_ids(reached).astype(PETSc.IntType)
+        indices = PETSc.IS().createBlock(2, reached_ids, comm=PETSc.COMM_SELF)
+        gathered = PETSc.Vec().createSeq(2 * len(reached), comm=PETSc.COMM_SELF)
+        scatter = PETSc.Scatter().create(u, indices, gathered, None)
+        scatter.scatter(u, gathered, addv=PETSc.InsertMode.INSERT_VALUES)
+        by_node = np.zeros((len(self.mls.nodes), 2))
+        by_node[reached] = gathered.getArray().reshape(-1, 2)
+        for obj in (scatter, gathered, indices):
+            obj.destroy()
+        return by_node
 
     def evaluate(self, comm, u: PETSc.Vec) -> np.ndarray:
         """(n_points, 2, 2) with [q, i, j] = d u_i / d x_j at the points.  Collective.
@@ -227,28 +242,3 @@ def _pairwise_row_sums(products: np.ndarray) -> np.ndarray:
     for column in range(pairs.shape[1]):
         total = total + pairs[:, column]
     return total
-
-
-def _nodal_values(
-    u: PETSc.Vec, reached: np.ndarray | None, reached_ids: np.ndarray | None, n_held: int
-) -> np.ndarray:
-    """u's nodal values (n_held, 2) by held node: the rows of the ``reached`` nodes (held
-    positions, sorted), whose global numbers are ``reached_ids``, gathered from their
-    owners (every node on one rank: None); the other rows are 0 and never read.
-
-    By held node rather than by reached node, so that the blocks read their neighbours'
-    rows with a plain gather (a search per entry cost 0.44 s of a 2-rank error norm at
-    80802 DOFs).  Collective on ``u``'s communicator when ``reached`` is given.
-    """
-    if reached is None:
-        return u.getArray(readonly=True).reshape(-1, 2)
-    assert reached_ids is not None
-    indices = PETSc.IS().createBlock(2, reached_ids.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
-    gathered = PETSc.Vec().createSeq(2 * len(reached), comm=PETSc.COMM_SELF)
-    scatter = PETSc.Scatter().create(u, indices, gathered, None)
-    scatter.scatter(u, gathered, addv=PETSc.InsertMode.INSERT_VALUES)
-    by_node = np.zeros((n_held, 2))
-    by_node[reached] = gathered.getArray().reshape(-1, 2)
-    for obj in (scatter, gathered, indices):
-        obj.destroy()
-    return by_node
