@@ -28,6 +28,7 @@ from parefg.discretization.dirichlet import (
 from parefg.discretization.mls import MLS, ShapeValues
 from parefg.discretization.point_set import PointSet
 from parefg.discretization.quadrature import Quadrature, segment_quadrature
+from parefg.discretization.structure import structural_sum, weighted_product
 from parefg.discretization.trace_inverse import nitsche_beta
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.partition import Partition
@@ -120,7 +121,7 @@ class BoundaryOperators:
         """Point sets of every boundary condition; D, its parts and the Gamma_C pattern."""
         scene, cloud, n = self.scene, self.cloud, self.n_held
         boundary, parts, contact_parts = {}, {}, []
-        dirichlet_local = sp.csr_matrix((2 * n, 2 * n))
+        dirichlet_terms: list[tuple[float, sp.spmatrix]] = []  # (sign, matrix) summing to D
         for name, bc in scene.boundaries.items():
             part_id = cloud.part_names.index(name)
             if bc.kind == BoundaryKind.CONTACT:
@@ -139,7 +140,7 @@ class BoundaryOperators:
                 parts[name], local = self._dirichlet_part(
                     method, bc, quadrature, shape, (group, offset) if coarse else None
                 )
-                dirichlet_local = dirichlet_local + local
+                dirichlet_terms.append((1.0, local))
         contact, pattern = None, sp.csr_matrix((2 * n, 2 * n))
         if contact_parts:
             nitsche_parts = self._nitsche_contact_parts(NITSCHE_CONTACT_METHODS)
@@ -175,10 +176,11 @@ class BoundaryOperators:
                         quadrature, cloud.coords, cloud.segments, hat_group, offset
                     )
                     extra["projection"] = hats if projection is None else projection @ hats
-                dirichlet_local = dirichlet_local - extra.pop("nitsche_matrix")
+                dirichlet_terms.append((-1.0, extra.pop("nitsche_matrix")))
             with phase(self.timings, "assembly"):
                 contact = self._point_set(quadrature, shape, part=part_of_point, rows=rows, **extra)
                 pattern = contact_pattern(shape, n, group, n_global=self.n_nodes)
+        dirichlet_local = structural_sum(dirichlet_terms, (2 * n, 2 * n))
         return boundary, parts, contact, dirichlet_local, pattern
 
     def _nitsche_contact_parts(self, methods: tuple[str, ...]) -> list[int]:
@@ -245,8 +247,7 @@ class BoundaryOperators:
                 shape=(len(normals), 2 * len(normals)),
             )
             normal_traction = (rotate @ traction).tocsr()  # (n_c, 2 n) sigma_nu rows
-            scale = sp.diags(quadrature.weights / gamma)
-            matrix = (normal_traction.T @ scale @ normal_traction).tocsr()
+            matrix = weighted_product(normal_traction, quadrature.weights / gamma, normal_traction)
             # PETSc, as the point set's value operator: no scipy twin is kept
             normal_traction = petsc_matrix(
                 self.comm,

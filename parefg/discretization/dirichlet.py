@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from parefg.discretization.coarse_trace import project_rows
+from parefg.discretization.structure import structural_sum, weighted_product
 
 if TYPE_CHECKING:  # the scene schema reads the registry without loading PETSc or numba
     from petsc4py import PETSc
@@ -174,14 +175,15 @@ def local_operators(
         values = project_rows(projection, values)
     weight_rows = np.repeat(weights, 2)
     beta_rows = np.repeat(beta, 2)
-    matrix = values.T @ sp.diags(weight_rows * beta_rows) @ values
+    # the patterns are structural (parefg.discretization.structure): phi and T are signed
+    terms = [(1.0, weighted_product(values, weight_rows * beta_rows, values))]
     load = sp.diags(beta_rows) @ values
     traction = None
     if method.consistent:
         traction = traction_operator(shape, normals, n_nodes, lam, mu)
         if projection is not None:
             traction = project_rows(projection, traction)
-        cross = values.T @ sp.diags(weight_rows) @ traction
-        matrix = matrix - cross - cross.T
+        cross = weighted_product(values, weight_rows, traction)
+        terms += [(-1.0, cross), (-1.0, cross.T)]
         load = load - traction
-    return matrix.tocsr(), load.tocsr(), traction
+    return structural_sum(terms, (2 * n_nodes, 2 * n_nodes)), load.tocsr(), traction
