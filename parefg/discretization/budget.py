@@ -22,6 +22,7 @@ from typing import Protocol
 
 from petsc4py import PETSc
 
+from parefg.discretization import aot
 from parefg.discretization.size_estimate import (
     Size,
     cloud_size,
@@ -247,7 +248,9 @@ class Budget:
                 f"PETSc's 32-bit indices allow at most {MAX_INDEX} per rank; use a larger h, "
                 "a smaller support or more ranks"
             )
-        needed = memory_per_rank(size, self.n_ranks, uses_direct_solver(scene))
+        needed = memory_per_rank(
+            size, self.n_ranks, uses_direct_solver(scene), jit=not aot.available()
+        )
         if needed <= slack * (self.rank_bytes if rank_bytes is None else rank_bytes):
             return None
         limit = "--max-memory" if self.given else "80% of the available memory"

@@ -1,10 +1,13 @@
 """The discrete EFG operators of one run, assembled once (SPEC 2, 3, 5).
 
 scene -> node cloud -> partition -> MLS at this rank's quadrature points -> PETSc
-operators.  Everything here is constant over the run (small deformation): mass M,
-stiffness K, the Dirichlet operator D (penalty or Nitsche: built in
-:mod:`.boundary_operators`), and the point operators (:mod:`.point_set`) that evaluate
-u_h (and its gradient) at quadrature points, Gamma_C points and nodes.
+operators.  The cloud is meshed on rank 0 and partitioned there, each rank receiving its
+part (:mod:`parefg.geometry.distribute`), except a rectangle's grid, which each rank
+makes its own part of (:mod:`parefg.geometry.grid_parts`).  Everything here is constant
+over the run (small deformation): mass M, stiffness K, the Dirichlet operator D (penalty
+or Nitsche: built in :mod:`.boundary_operators`), and the point operators
+(:mod:`.point_set`) that evaluate u_h (and its gradient) at quadrature points, Gamma_C
+points and nodes.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from parefg.discretization.size_estimate import BUILT_VALUE_BYTES
 from parefg.geometry.cloud import NodeCloud
 from parefg.geometry.distribute import partition_on_root
 from parefg.geometry.gmsh_mesh import mesh_on_root
+from parefg.geometry.grid_parts import mesh_by_parts
 from parefg.geometry.partition import Partition
 from parefg.parallel import global_columns, owned_rows, raise_everywhere
 from parefg.profiling import phase
@@ -157,11 +161,8 @@ class _Builder(BoundaryOperators):
         self.timings = {"mesh": 0.0, "neighbours": 0.0, "mls": 0.0, "assembly": 0.0}
         self.n_contact = 0
         with phase(self.timings, "mesh"):
-            # None on ranks > 0: partition_on_root sends them theirs
-            cloud = scene_cloud_on_root(comm, scene, budget)
-            budget.check_cloud(comm, cloud)  # the actual size, before any MLS work
-            self.cloud, self.partition = partition_on_root(comm, cloud)
-            del cloud
+            # a rectangle's grid: each rank makes its own part (its size is the estimate's)
+            self.cloud, self.partition = mesh_by_parts(comm, scene) or self._partitioned_on_root()
             # the nodes whose supports reach where this rank evaluates MLS (ghosts)
             box = evaluation_box(self.cloud, self.partition, comm.rank, self._grouping())
             self.cloud = add_ghosts(
@@ -194,6 +195,14 @@ class _Builder(BoundaryOperators):
         )
         self.conditions: list[np.ndarray] = []  # MLS condition numbers of every point set
         self.trace_blocks: list[np.ndarray] = []  # owned nodes of each coarse-trace group
+
+    def _partitioned_on_root(self) -> tuple[NodeCloud, Partition]:
+        """The scene's cloud meshed on rank 0 and partitioned there, each rank's part sent
+        to it (:func:`~parefg.geometry.distribute.partition_on_root`).  Collective."""
+        # None on ranks > 0: partition_on_root sends them theirs
+        cloud = scene_cloud_on_root(self.comm, self.scene, self.budget)
+        self.budget.check_cloud(self.comm, cloud)  # the actual size, before any MLS work
+        return partition_on_root(self.comm, cloud)
 
     def build(self) -> Discretization:
         comm, cloud, n = self.comm, self.cloud, self.n_nodes

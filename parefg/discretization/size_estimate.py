@@ -11,8 +11,9 @@ N) and from those the peak resident memory of the largest rank::
                                        + matrices     nnz(A) = 4 N R   (R = nodes within 2 s c)
                                        + Cholesky     nnz(L) = nnz(A) * fill(2 N)  (direct only)
 
-The coefficients are measured (``scripts/bench/calibrate_budget.py``: the estimate is 0.95-1.45
-times summary.json's ``peak_rss_mb``, direct and iterative, m = 1 and 2); the direct
+The coefficients are measured (``scripts/bench/calibrate_budget.py``: the estimate is 0.9-1.5
+times summary.json's ``peak_rss_mb``, direct and iterative, m = 1, 2 and 3, 2026-12-07;
+up to 2.2x for m = 1 below 2e4 DOFs, where the process's own base dominates); the direct
 factorization's fill is a rough fit of MUMPS's nested-dissection fill on these stencils,
 growing like log N.
 :func:`cloud_size` counts the same from an actual node cloud.  Not collective.
@@ -24,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 from parefg.geometry.cells import UNSTRUCTURED_DENSITY, CellType
+from parefg.geometry.grid_parts import scene_grid
 
 # Unstructured gmsh meshes at target size h: N = UNSTRUCTURED_DENSITY A / h^2 + 0.5 P / h.
 # Local geometry in units of the node spacing c_I: (nodes per c^2, cell area / c^2), the
@@ -41,9 +43,15 @@ PADDING = {"grid": 1.15, "unstructured": 1.4, "patches quad": 1.8, "patches tri"
 # Measured bytes (scripts/bench/calibrate_budget.py; square, m = 1, 2, direct and iterative,
 # 2e3 ... 1e6 DOFs, 1 and 2 ranks): a least-squares fit of peak_rss_mb, times 1.2 (base
 # raised to the small m = 2 runs), so the estimate is 0.95-1.45x the measured peak.
-# Python, numpy, PETSc, MPI, numba, gmsh:
-BASE_BYTES = 460e6
-NODE_BYTES = 400  # node cloud and partition, held by every rank; gmsh's mesh on rank 0
+# The process: Python, numpy, PETSc, MPI (460e6 with numba and gmsh in that fit), and what
+# it loads only when needed, each measured as the peak's difference (square, m = 2,
+# h = 1/32, 2026-12-07) times the same 1.2: numba's JIT and LLVM where the kernels are
+# not compiled ahead of time (+90 MB), gmsh and its mesh where rank 0 meshes (+40 MB; a
+# rectangle's grid is made part by part without it, parefg.geometry.grid_parts).
+BASE_BYTES = 350e6
+JIT_BYTES = 110e6
+GMSH_BYTES = 50e6
+NODE_BYTES = 400  # node cloud and partition (every rank's, or its share of a grid's)
 GRADIENT_SLOT_BYTES = 12  # per (point, neighbour) with gradients, consumed cell by cell
 VALUE_SLOT_BYTES = 60  # per (point, neighbour), values only (boundary points)
 PAIR_BYTES = 18  # per coupled node pair of one cell (Gram assembly, transient)
@@ -75,6 +83,9 @@ class Size:
         Nodes touching one cell's Gauss points (the Gram assembly pairs them all).
     reach : float
         Nodes coupled to one node in the stiffness matrix (supports that overlap).
+    meshed_on_root : bool
+        Rank 0 meshes the cloud with gmsh and partitions it (not a rectangle's grid, which
+        each rank makes its part of).
     """
 
     n_nodes: float
@@ -84,6 +95,7 @@ class Size:
     neighbours: float
     cell_nodes: float
     reach: float
+    meshed_on_root: bool = True
 
     @property
     def n_dofs(self) -> float:
@@ -102,11 +114,12 @@ class Size:
         return min(self.matrix_entries * fill, n_dofs * (n_dofs + 1) / 2)
 
 
-def memory_per_rank(size: Size, n_ranks: int, direct: bool = True) -> float:
+def memory_per_rank(size: Size, n_ranks: int, direct: bool = True, jit: bool = False) -> float:
     """Estimated peak resident bytes of the largest of ``n_ranks`` ranks running ``size``.
 
     ``direct``: the linear solver factors A_const (a factor of ``size.factor_entries``);
-    an iterative one (CG + GAMG) keeps no factor.
+    an iterative one (CG + GAMG) keeps no factor.  ``jit``: the kernels are compiled by
+    numba's JIT in the run (no module compiled ahead of time).
     """
     gradient_points = size.n_domain_points + size.n_nodes
     # S's entries: the padded lists over the largest padding (the mean at least); unbuilt if large
@@ -120,7 +133,10 @@ def memory_per_rank(size: Size, n_ranks: int, direct: bool = True) -> float:
         + ENTRY_BYTES * size.matrix_entries
         + (FACTOR_BYTES * size.factor_entries if direct else 0.0)
     )
-    return BASE_BYTES + NODE_BYTES * size.n_nodes + shared / n_ranks
+    process = BASE_BYTES + (JIT_BYTES if jit else 0.0)
+    if size.meshed_on_root:
+        return process + GMSH_BYTES + NODE_BYTES * size.n_nodes + shared / n_ranks
+    return process + (NODE_BYTES * size.n_nodes + shared) / n_ranks
 
 
 # --------------------------------------------------------------------------- sizes
@@ -170,6 +186,7 @@ def _size(scene, n_nodes, n_cells, n_segments, kappa: float, alpha: float) -> Si
         neighbours=min(n_nodes, _padding(scene) * mean + 1),
         cell_nodes=min(n_nodes, cell + 1),
         reach=min(n_nodes, 4 * mean + 1),
+        meshed_on_root=scene_grid(scene) is None,
     )
 
 

@@ -57,7 +57,7 @@ class Partition:
 
 
 @dataclass
-class _Cut:
+class Cut:
     """A bisection: points with coordinate ``axis`` below ``value`` go to ``below``.
 
     ``below`` and ``above`` are sub-cuts or, at the leaves, part numbers.
@@ -65,8 +65,8 @@ class _Cut:
 
     axis: int
     value: float
-    below: _Cut | int
-    above: _Cut | int
+    below: Cut | int
+    above: Cut | int
 
 
 def partition_cloud(cloud: NodeCloud, n_parts: int) -> tuple[NodeCloud, Partition]:
@@ -110,9 +110,9 @@ def partition_cloud(cloud: NodeCloud, n_parts: int) -> tuple[NodeCloud, Partitio
     partition = Partition(
         n_parts=int(n_parts),
         node_ranges=np.concatenate([[0], np.cumsum(node_counts)]).astype(np.int64),
-        quad_owner=_classify(cuts, _centroids(cloud.coords, cloud.quads)),
-        triangle_owner=_classify(cuts, _centroids(cloud.coords, cloud.triangles)),
-        segment_owner=_classify(cuts, _centroids(cloud.coords, cloud.segments)),
+        quad_owner=classify(cuts, _centroids(cloud.coords, cloud.quads)),
+        triangle_owner=classify(cuts, _centroids(cloud.coords, cloud.triangles)),
+        segment_owner=classify(cuts, _centroids(cloud.coords, cloud.segments)),
     )
     return renumbered, partition
 
@@ -134,7 +134,7 @@ def bisection_parts(points: np.ndarray, n_parts: int) -> np.ndarray:
     return part
 
 
-def _bisect(coords, members, first_part: int, n_parts: int, node_part) -> _Cut | int:
+def _bisect(coords, members, first_part: int, n_parts: int, node_part) -> Cut | int:
     """Cut tree of the nodes ``members`` into parts first_part .. first_part + n_parts - 1.
 
     Writes each member's part into ``node_part``.  The lower side of a cut gets
@@ -160,10 +160,10 @@ def _bisect(coords, members, first_part: int, n_parts: int, node_part) -> _Cut |
         coords, members[order[n_below:]], first_part + n_below_parts, n_parts - n_below_parts,
         node_part,
     )  # fmt: skip
-    return _Cut(axis, float(value), below, above)
+    return Cut(axis, float(value), below, above)
 
 
-def _classify(cuts: _Cut | int, points: np.ndarray) -> np.ndarray:
+def classify(cuts: Cut | int, points: np.ndarray) -> np.ndarray:
     """(n_points,) int64 part of each point under the cut tree (coordinate < value: below)."""
     part = np.empty(len(points), dtype=np.int64)
     pending = [(cuts, np.arange(len(points)))]  # (subtree, rows of points that reach it)

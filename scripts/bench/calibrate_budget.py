@@ -20,6 +20,7 @@ from pathlib import Path
 
 import benchlib
 
+from parefg.discretization import aot
 from parefg.discretization.budget import estimate_scene, memory_per_rank, uses_direct_solver
 from parefg.scene.loader import load_scene
 
@@ -96,7 +97,9 @@ def main():
         sets = overrides(degree, h, cells)
         scene = load_scene(scene_name, sets)
         size = estimate_scene(scene)
-        estimated = memory_per_rank(size, ranks, uses_direct_solver(scene)) / 2**20
+        estimated = (
+            memory_per_rank(size, ranks, uses_direct_solver(scene), jit=not aot.available()) / 2**20
+        )
         summary = measure(scene_name, sets, ranks)
         measured = summary["peak_rss_mb"]
         row = dict(

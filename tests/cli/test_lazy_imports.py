@@ -1,6 +1,7 @@
 """Light commands stay light: ``import parefg.cli``, ``parefg --help`` and ``parefg scenes``
-import none of the heavy layers a run needs (sympy, matplotlib, h5py, numba, gmsh), and a
-run whose scene data and mesh are cached imports neither sympy nor gmsh, and a run of the
+import none of the heavy layers a run needs (sympy, matplotlib, h5py, numba, gmsh), a
+run whose scene data and mesh are cached imports neither sympy nor gmsh, a run on a
+rectangle never imports gmsh (each rank makes its part of the grid), and a run of the
 default scene (small: numpy kernels, parefg.discretization.backends) never imports numba.
 
 Each case runs in a fresh interpreter (``sys.modules`` of this one is full of them) and
@@ -16,6 +17,8 @@ import pytest
 from conftest import QUICK, REPO, mpi_env
 
 HEAVY = ("sympy", "matplotlib", "h5py", "numba", "gmsh")
+# scene -> what its first run imports of gmsh and sympy: a rectangle is never meshed by gmsh
+FIRST_RUN_IMPORTS = {"square": "sympy", "z": "gmsh sympy"}
 PROBE = """
 import sys
 from parefg import cli
@@ -62,25 +65,30 @@ def probe_run(argv, heavy, env, cwd=None) -> tuple[str, dict]:
 
 
 @pytest.mark.serial_only
-def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path):
-    """The first run derives the scene's data (sympy) and meshes (gmsh), the next one reads
-    both from the user cache: same results, and neither sympy nor gmsh imported.  Neither
-    run imports numba (the default scene is below backends.NUMBA_MIN_NODES)."""
+@pytest.mark.parametrize("scene", FIRST_RUN_IMPORTS)
+def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path, scene):
+    """The first run derives the scene's data (sympy) and meshes (gmsh; not a rectangle),
+    the next one reads both from the user cache: same results, and neither sympy nor gmsh
+    imported.  Neither run imports numba (the kernels compiled ahead of time, or numpy's
+    below backends.NUMBA_MIN_NODES)."""
     env = {**mpi_env(), "PAREFG_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("PAREFG_SCENE_CACHE", None)
     env.pop("PAREFG_KERNELS", None)
     imported, results = [], []
     for run in ("derived", "cached"):
-        argv = ["run", "square", "--quiet", "--out", str(tmp_path / run), *QUICK]
+        argv = ["run", scene, "--quiet", "--out", str(tmp_path / run), *QUICK]
         heavy, summary = probe_run(argv, ("gmsh", "numba", "sympy"), env)
         imported.append(heavy)
         results.append(summary)
-    assert imported == ["gmsh sympy", ""]
+    assert imported == [FIRST_RUN_IMPORTS[scene], ""]
     assert results[0] == results[1]
 
 
 @pytest.mark.serial_only
-def test_a_run_of_a_prebuilt_scene_imports_neither_sympy_nor_gmsh_and_writes_nowhere(tmp_path):
+@pytest.mark.parametrize("scene", FIRST_RUN_IMPORTS)
+def test_a_run_of_a_prebuilt_scene_imports_neither_sympy_nor_gmsh_and_writes_nowhere(
+    tmp_path, scene
+):
     """`make setup` prebuilds the built-in scenes (scripts/setup/prebuild_scenes.py): a run
     of one at its defaults (dt is not part of what is prebuilt) then reads the prebuilt data
     and mesh, with no user cache: neither sympy nor gmsh imported, the results of a run
@@ -101,11 +109,11 @@ def test_a_run_of_a_prebuilt_scene_imports_neither_sympy_nor_gmsh_and_writes_now
     imported, results = [], []
     for run, extra in (("prebuilt", {}), ("derived", {"PAREFG_CACHE": "0"})):
         out = tmp_path / f"run-{run}"
-        argv = ["run", "square", "--quiet", "--out", str(out), "--set", "time.dt=0.25"]
+        argv = ["run", scene, "--quiet", "--out", str(out), "--set", "time.dt=0.25"]
         heavy, summary = probe_run(argv, ("gmsh", "sympy"), {**env, **extra}, cwd=tmp_path)
         imported.append(heavy)
         results.append(summary)
-    assert imported == ["", "gmsh sympy"]
+    assert imported == ["", FIRST_RUN_IMPORTS[scene]]
     assert results[0] == results[1]
     assert sorted((str(path), path.stat().st_mtime_ns) for path in prebuilt.rglob("*")) == before
     assert list(home.iterdir()) == []

@@ -49,7 +49,9 @@ def test_kept_kinematics_follow_every_change_of_the_vector():
         after = law.kinematics(u)
         for value, fresh, old in zip(after, _fresh_kinematics(law, u), before, strict=True):
             assert np.array_equal(value, fresh)
-            assert not np.array_equal(value, old)
+            # a rank may hold no Gamma_C point (h = 1/8 on 2 ranks: both coarse-trace
+            # groups of the bottom start on rank 0's segments)
+            assert len(value) == 0 or not np.array_equal(value, old)
     # writes through a writable array view count once the view is released
     array = u.getArray()
     array *= 3.0
