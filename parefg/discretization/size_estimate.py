@@ -42,12 +42,12 @@ PADDING = {"grid": 1.15, "unstructured": 1.4, "patches quad": 1.8, "patches tri"
 
 # Measured bytes (scripts/bench/calibrate_budget.py; square, m = 1, 2, direct and iterative,
 # 2e3 ... 1e6 DOFs, 1 and 2 ranks): a least-squares fit of peak_rss_mb, times 1.2 (base
-# raised to the small m = 2 runs), so the estimate is 0.95-1.45x the measured peak.
-# The process: Python, numpy, PETSc, MPI (460e6 with numba and gmsh in that fit), and what
-# it loads only when needed, each measured as the peak's difference (square, m = 2,
-# h = 1/32, 2026-12-07) times the same 1.2: numba's JIT and LLVM where the kernels are
-# not compiled ahead of time (+90 MB), gmsh and its mesh where rank 0 meshes (+40 MB; a
-# rectangle's grid is made part by part without it, parefg.geometry.grid_parts).
+# raised to the small m = 2 runs); the estimate is 0.9-1.5x the measured peak (module
+# docstring).  The process: Python, numpy, PETSc, MPI (460e6 with numba and gmsh in that
+# fit), and what it loads only when needed, each measured as the peak's difference
+# (square, m = 2, h = 1/32, 2026-12-07) times the same 1.2: numba's JIT and LLVM where the
+# kernels are not compiled ahead of time (+90 MB), gmsh and its mesh where rank 0 meshes
+# (+40 MB; a rectangle's grid is made part by part without it, geometry.grid_parts).
 BASE_BYTES = 350e6
 JIT_BYTES = 110e6
 GMSH_BYTES = 50e6
