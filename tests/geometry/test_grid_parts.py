@@ -7,6 +7,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from parefg.discretization import operators
 from parefg.geometry import grid_parts
@@ -121,6 +123,40 @@ def test_parts_together_are_the_whole_grid(name, n_parts):
     assert n_cells == len(whole.quads) + len(whole.triangles)
     sizes = np.diff(blocks.node_ranges)
     assert sizes.max() - sizes.min() <= max(n_x, n_y) + 1
+
+
+@settings(max_examples=60, deadline=None, database=None)
+@given(
+    n_x=st.integers(1, 12),
+    n_y=st.integers(1, 12),
+    aspect=st.floats(0.1, 10.0),
+    n_parts=st.integers(1, 9),
+    cells=st.sampled_from(["quad", "tri"]),
+)
+def test_any_grid_splits_into_rectangles_that_own_everything_once(n_x, n_y, aspect, n_parts, cells):
+    """Random grids and part counts: either no split (too few nodes for p rectangles), or
+    parts that own every node, cell and segment exactly once and hold their cells' corners."""
+    grid = grid_parts.Grid(np.zeros(2), np.array([1.0, aspect]), (n_x, n_y), cells)
+    blocks = grid_parts.grid_blocks(grid, n_parts)
+    if blocks is None:
+        assert n_parts > 1
+        return
+    whole = whole_grid(grid)
+    owned, n_cells, n_owned_segments = [], 0, 0
+    for rank in range(n_parts):
+        cloud, partition = grid_parts.grid_part(grid, blocks, rank)
+        np.testing.assert_array_equal(cloud.coords, whole.coords[cloud.original_index])
+        start, stop = partition.node_ranges[rank], partition.node_ranges[rank + 1]
+        assert stop > start  # no empty part
+        owned.append(cloud.original_index[cloud.run_of(int(start), int(stop))])
+        n_cells += len(cloud.quads) + len(cloud.triangles)
+        n_owned_segments += int(np.count_nonzero(partition.segment_owner == rank))
+        own_cells = {tuple(sorted(c)) for c in (*cloud.quads, *cloud.triangles)}
+        corners = cloud.segment_cells.corners[partition.segment_owner == rank]
+        assert all(tuple(sorted(c[c >= 0])) in own_cells for c in corners)
+    np.testing.assert_array_equal(np.sort(np.concatenate(owned)), np.arange(grid.n_nodes))
+    assert n_cells == len(whole.quads) + len(whole.triangles)
+    assert n_owned_segments == len(whole.segments) == 2 * (n_x + n_y)
 
 
 def test_only_unjittered_rectangles_are_grids():
