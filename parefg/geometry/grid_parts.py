@@ -265,9 +265,8 @@ def _cells(cells: str, i: np.ndarray, j: np.ndarray, at) -> tuple[np.ndarray, np
     upper-left) and (upper-left, lower-right, upper-right) when ``cells`` is "tri"."""
     lower_left, lower_right, upper_right, upper_left = (at(*c) for c in _corners(i, j))
     if cells == CellType.QUAD:
-        return np.column_stack([lower_left, lower_right, upper_right, upper_left]), np.empty(
-            (0, 3), dtype=np.int64
-        )
+        quads = np.column_stack([lower_left, lower_right, upper_right, upper_left])
+        return quads, np.empty((0, 3), dtype=np.int64)
     first = np.column_stack([lower_left, lower_right, upper_left])
     second = np.column_stack([upper_left, lower_right, upper_right])
     return np.empty((0, 4), dtype=np.int64), np.stack([first, second], axis=1).reshape(-1, 3)
