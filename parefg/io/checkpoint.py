@@ -251,7 +251,8 @@ def _check_nodes(comm, where: str, stored: np.ndarray, nodes: np.ndarray, rows) 
         here = int(np.flatnonzero(rows == first)[0])
         error = InputError(
             f"{where}: node {first} is at {_point(stored[here])} in the checkpoint, at "
-            f"{_point(nodes[here])} now: another node cloud (changed .geo file or gmsh?)"
+            f"{_point(nodes[here])} now: another node cloud or numbering (a changed .geo "
+            "file, another gmsh or parefg version?)"
         )
     raise_everywhere(comm, error)
 
