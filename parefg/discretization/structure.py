@@ -27,7 +27,29 @@ def structural_sum(terms: list[tuple[float, sp.spmatrix]], shape: tuple[int, int
 def weighted_product(left: sp.spmatrix, weights: np.ndarray, right: sp.spmatrix) -> sp.csr_matrix:
     """left^T diag(weights) right, with an entry (i, j) wherever a point q has
     left[q, i] weights[q] right[q, j] != 0: the pattern of the product of the absolute
-    values (nothing cancels there), the values those of scipy's product."""
-    product = (left.T @ sp.diags(weights) @ right).tocsr()
-    pattern = (abs(left).T @ sp.diags(np.abs(weights)) @ abs(right)).tocsr()
-    return structural_sum([(1.0, product), (0.0, pattern)], product.shape)
+    values (nothing cancels there), the values those of scipy's product (the same
+    association, (left^T diag(weights)) right, the same bits)."""
+    scaled = (left.T @ sp.diags(weights)).tocsr()  # columns of zero weight drop out
+    product = (scaled @ right).tocsr()
+    pattern = (abs(scaled) @ abs(right)).tocsr()
+    return _placed(product, pattern)
+
+
+def _placed(values: sp.csr_matrix, pattern: sp.csr_matrix) -> sp.csr_matrix:
+    """``values`` on ``pattern``'s entries (which include all of values'), 0 elsewhere."""
+    values.sort_indices()
+    pattern.sort_indices()
+    n_cols = pattern.shape[1]
+    pattern_keys = _rows_of(pattern) * n_cols + pattern.indices  # ascending
+    value_keys = _rows_of(values) * n_cols + values.indices
+    at = np.searchsorted(pattern_keys, value_keys).clip(max=max(len(pattern_keys) - 1, 0))
+    if not np.array_equal(pattern_keys[at], value_keys):
+        raise ValueError("the pattern misses entries of the values")
+    data = np.zeros(len(pattern_keys))
+    data[at] = values.data
+    return sp.csr_matrix((data, pattern.indices, pattern.indptr), shape=pattern.shape)
+
+
+def _rows_of(matrix: sp.csr_matrix) -> np.ndarray:
+    """(nnz,) int64 row of each stored entry of a CSR matrix."""
+    return np.repeat(np.arange(matrix.shape[0], dtype=np.int64), np.diff(matrix.indptr))
