@@ -36,7 +36,7 @@ import numpy as np
 from parefg.geometry.cells import CellType
 from parefg.geometry.cloud import BoundaryCells, NodeCloud
 from parefg.geometry.partition import Cut, Partition, classify
-from parefg.geometry.shapes import BOX_PART_NAMES, SHAPES, _transfinite_cells
+from parefg.geometry.shapes import BOX_PART_NAMES, SHAPES, box_lattice
 
 
 @dataclass(frozen=True)
@@ -91,12 +91,7 @@ def scene_grid(scene) -> Grid | None:
     shape = SHAPES[scene.domain["shape"]]
     if shape.box is None or scene.discretization.jitter > 0:
         return None
-    (x0, y0), (lx, ly) = shape.box(scene.domain)
-    h = scene.discretization.h
-    n_cells = (_transfinite_cells(lx, h), _transfinite_cells(ly, h))
-    # the lattice of shapes._build_box, to the bit
-    step = np.array([lx / n_cells[0], ly / n_cells[1]])
-    origin = np.array([x0, y0], dtype=float)
+    origin, step, n_cells = box_lattice(*shape.box(scene.domain), scene.discretization.h)
     return Grid(origin, step, n_cells, scene.discretization.cells)
 
 

@@ -149,13 +149,22 @@ def _build_box(gmsh, origin, size, h: float, cells: str) -> GmshDomain:
         raise InputError(f"domain.size: both lengths must be > 0, got {[lx, ly]}")
     corners = [(x0, y0), (x0 + lx, y0), (x0 + lx, y0 + ly), (x0, y0 + ly)]
     surface, lines = _add_polygon_surface(gmsh, corners, h)
-    n_x, n_y = _transfinite_cells(lx, h), _transfinite_cells(ly, h)
+    lattice_origin, step, (n_x, n_y) = box_lattice(origin, size, h)
     for line, n_cells in zip(lines, (n_x, n_y, n_x, n_y), strict=True):
         gmsh.model.mesh.setTransfiniteCurve(line, n_cells + 1)
     _set_transfinite_surface(gmsh, surface, cells)
     parts = {name: [line] for name, line in zip(BOX_PART_NAMES, lines, strict=True)}
-    lattice = (np.array([x0, y0], dtype=float), np.array([lx / n_x, ly / n_y]))
-    return GmshDomain([surface], parts, lattice, structured=True)
+    return GmshDomain([surface], parts, (lattice_origin, step), structured=True)
+
+
+def box_lattice(origin, size, h: float) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """(origin (2,), step (2,), (n_x, n_y)) of a rectangle's transfinite grid at h: its
+    nodes are origin + (i, j) step, 0 <= i <= n_x, 0 <= j <= n_y, n = ceil(L / h) cells a
+    side (the one computation of :func:`_build_box`'s lattice and of
+    :mod:`parefg.geometry.grid_parts`, which rebuilds it to the bit)."""
+    (x0, y0), (lx, ly) = origin, size
+    n_x, n_y = _transfinite_cells(lx, h), _transfinite_cells(ly, h)
+    return np.array([x0, y0], dtype=float), np.array([lx / n_x, ly / n_y]), (n_x, n_y)
 
 
 def _transfinite_cells(length: float, h: float, at_least: int = 1) -> int:
