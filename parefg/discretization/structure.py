@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from parefg.discretization.assembly_numpy import pair_positions
+
 
 def structural_sum(terms: list[tuple[float, sp.spmatrix]], shape: tuple[int, int]) -> sp.csr_matrix:
     """sum of sign * matrix over ``terms`` (sign +1, -1 or 0: the pattern only), its
@@ -36,20 +38,24 @@ def weighted_product(left: sp.spmatrix, weights: np.ndarray, right: sp.spmatrix)
 
 
 def _placed(values: sp.csr_matrix, pattern: sp.csr_matrix) -> sp.csr_matrix:
-    """``values`` on ``pattern``'s entries (which include all of values'), 0 elsewhere."""
+    """``values`` on ``pattern``'s entries (which include all of values'), 0 elsewhere.
+
+    Square matrices (DOF by DOF): the entries are found as the assembly finds its pairs
+    (:func:`~parefg.discretization.assembly_numpy.pair_positions`).
+    """
+    if pattern.shape[0] != pattern.shape[1]:
+        raise ValueError(f"a structural product must be square, got {pattern.shape}")
     values.sort_indices()
     pattern.sort_indices()
-    n_cols = pattern.shape[1]
-    pattern_keys = _rows_of(pattern) * n_cols + pattern.indices  # ascending
-    value_keys = _rows_of(values) * n_cols + values.indices
-    at = np.searchsorted(pattern_keys, value_keys).clip(max=max(len(pattern_keys) - 1, 0))
-    if not np.array_equal(pattern_keys[at], value_keys):
+    rows = np.repeat(np.arange(values.shape[0], dtype=np.int64), np.diff(values.indptr))
+    at = pair_positions(pattern.indptr, pattern.indices, rows, values.indices)
+    inside = np.all((at >= 0) & (at < len(pattern.indices)))
+    if not (
+        inside
+        and np.array_equal(pattern.indices[at], values.indices)
+        and np.array_equal(np.searchsorted(pattern.indptr, at, side="right") - 1, rows)
+    ):
         raise ValueError("the pattern misses entries of the values")
-    data = np.zeros(len(pattern_keys))
+    data = np.zeros(len(pattern.indices))
     data[at] = values.data
     return sp.csr_matrix((data, pattern.indices, pattern.indptr), shape=pattern.shape)
-
-
-def _rows_of(matrix: sp.csr_matrix) -> np.ndarray:
-    """(nnz,) int64 row of each stored entry of a CSR matrix."""
-    return np.repeat(np.arange(matrix.shape[0], dtype=np.int64), np.diff(matrix.indptr))
