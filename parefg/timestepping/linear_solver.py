@@ -74,9 +74,18 @@ FinestLevel = Callable[[PETSc.PC], None]
 # threshold of 0.05 keeps GAMG from coarsening the wide MLS stencils in one jump (2178 ->
 # 18 rows at h = 1/32); the Chebyshev/Jacobi smoother is SPD (SOR's inode blocks hit zero
 # pivots on the coarse rigid-body levels); the residual is the true one, so the tolerance
-# is on |b - A u|.  The preconditioner is rebuilt only when the step matrix changes (the
-# contact active set); reusing GAMG's interpolation then (measured at s = 3.2: square,
-# h = 1/16, first step) leaves CG with DIVERGED_INDEFINITE_PC after 3 iterations.
+# is on |b - A u|.  The preconditioner is set up again only when the step matrix changes
+# (the contact active set), and then keeps its interpolation (the aggregates and
+# prolongators of the first Jacobian; only the Galerkin coarse matrices are recomputed) but
+# not the smoothed-aggregation eigenvalue estimate: the levels' Chebyshev estimates its
+# interval for the new matrix itself.  The contact rows change a thin layer at Gamma_C, to
+# which the coarse spaces hardly react, but they raise the largest eigenvalue: with the
+# estimate kept (PETSc's default) CG stopped with DIVERGED_INDEFINITE_PC (m = 1, h =
+# 1/320, 206082 DOFs, first step; earlier m = 2, s = 3.2, h = 1/16).  Measured with both
+# (2026-12-07): the same CG counts (m = 1, 2e5 DOFs: 98 against 96; impact, 258 Jacobians:
+# 11763 against 11760; z: 960 against 932) and the step solve 1.46x (m = 1, 2e5 DOFs,
+# PCSetUp 9.5 -> 4.6 s), 1.5x (m = 2, 8450 DOFs), 1.4x (m = 3) faster.  A linear solve
+# that fails with a kept interpolation is retried once with a new one (ContactStepSolver).
 # The counts are bounded in h for supports up to s ~ 2.4 at m = 2 (static 23, 25, 25 at
 # h = 1/16, 1/32, 1/64) and grow with 1/h for wider ones (s = 3.2: 448, 803, 1035): a wide
 # MLS support makes oscillating nodal parameters give almost no field, so the smallest
@@ -99,7 +108,8 @@ _AMG = {
     "pc_gamg_threshold": "0.05",
     # The levels smooth with GAMG's own Chebyshev / Jacobi.  No mg_levels_ defaults here:
     # PCMG reads them at set-up, after set_from_options has withdrawn its defaults again.
-    "pc_gamg_reuse_interpolation": "false",  # PETSc 3.18's default is true
+    "pc_gamg_reuse_interpolation": "true",  # PETSc 3.18's default too; stated, it is relied on
+    "pc_gamg_use_sa_esteig": "false",  # Chebyshev estimates each new matrix's interval
 }
 # At m = 3 (s = 3.2) the oscillating near-null vectors are a band of high frequencies (the
 # smallest eigenvalues of the Jacobi-scaled step Jacobian are checkerboard patterns times
@@ -247,6 +257,35 @@ def configure_finest_blocks(pc: PETSc.PC, blocks: list[np.ndarray]) -> None:
         block.setType(PETSc.KSP.Type.PREONLY)
         block.getPC().setType(PETSc.PC.Type.LU)
     smoother.setUp()
+
+
+def keeps_interpolation(ksp: PETSc.KSP, method: SolverMethod) -> bool:
+    """Whether ``ksp``'s preconditioner is GAMG keeping its interpolation for a new matrix
+    (-pc_gamg_reuse_interpolation: the method's default, else PETSc 3.18's, true).  Call
+    after setFromOptions.  Not collective: every rank has the same options."""
+    if ksp.getPC().getType() != PETSc.PC.Type.GAMG:
+        return False
+    default = method.step.get("pc_gamg_reuse_interpolation", "true") == "true"
+    options = PETSc.Options(ksp.getOptionsPrefix())
+    return bool(options.getBool("pc_gamg_reuse_interpolation", default))
+
+
+def set_up_afresh(ksp: PETSc.KSP, method: SolverMethod, finest: FinestLevel | None) -> None:
+    """The step KSP's preconditioner built anew for its current operators (a GAMG hierarchy
+    with new aggregates, interpolation and levels), then :func:`set_up_step_ksp`.
+
+    The PC's type is set away and back, which destroys its hierarchy; its options (the
+    ``method``'s defaults, any -pc_ option winning) are read again.  A PCReset would keep
+    the level solvers, which refuse the other sizes of new aggregates.  Collective.
+    """
+    pc = ksp.getPC()
+    kind = pc.getType()
+    pc.setType(PETSc.PC.Type.NONE)
+    pc.setType(kind)
+    set_from_options(pc, pc.getOptionsPrefix() or "", method.step)
+    # the operators set again: a KSP set up for them skips the set-up of its new PC
+    ksp.setOperators(*ksp.getOperators())
+    set_up_step_ksp(ksp, finest)
 
 
 def set_up_step_ksp(ksp: PETSc.KSP, finest: FinestLevel | None) -> None:

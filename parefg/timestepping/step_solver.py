@@ -31,6 +31,10 @@ is then not evaluated: one product with A_const less), and an update below stol 
 round-off.  A Newton direction that is not a descent direction of J_n, where the residual
 does not meet the tolerance, ends the step as a failure.
 
+With a GAMG preconditioner that keeps its first interpolation for later Jacobians (the
+iterative method's default), a step whose linear solve fails is redone from u_0, once,
+with a hierarchy built for each Jacobian of that step (:func:`set_up_afresh`).
+
 Products with A_const: one per Newton iterate (:class:`ReusedProduct` serves the same x
 to the step scale, the residual and the line search), none at the accepted exact step.
 
@@ -63,10 +67,12 @@ from parefg.timestepping.linear_solver import (
     check_symmetric_use,
     configure_linear_solver,
     is_exact,
+    keeps_interpolation,
     ksp_failure,
     reason_name,
     scaled_ksp_tolerance,
     set_ksp_tolerance,
+    set_up_afresh,
     set_up_step_ksp,
     step_scale,
 )
@@ -136,6 +142,7 @@ class ContactStepSolver:
         self._direction, self._product, self._smooth, self._check, self._update = (
             a_const.createVecRight() for _ in range(5)
         )
+        self._start = a_const.createVecRight()  # u_0 of the step, for a retried solve
         self.factorizations = 0
         self.jacobian_builds = 0
         # the Jacobian build whose exact-step acceptances have been checked (see _verify)
@@ -152,6 +159,13 @@ class ContactStepSolver:
         self._failure: str | None = None  # why the running step must fail
         self.snes = self._create_snes(comm)
         self.exact = is_exact(self.snes.getKSP())
+        # GAMG set up for a new Jacobian keeps the interpolation of an earlier one: a linear
+        # solve failing with it is retried once with a new hierarchy (see solve)
+        self._keeps_interpolation = keeps_interpolation(self.snes.getKSP(), self.method)
+        self._set_up = False  # the step preconditioner was set up at least once
+        self._interpolation_kept = False  # its last set-up kept an earlier interpolation
+        self._afresh = False  # every set-up builds a new hierarchy (a retried step)
+        self.fresh_preconditioners = 0  # retries with a new hierarchy
         self.scaled_tolerance = scaled_ksp_tolerance(self.method)
         # read while the step's options are in the database (the caller's scene options)
         self._reuse = (
@@ -238,8 +252,14 @@ class ContactStepSolver:
         self.jacobian_builds += 1
         # set up now, not in SNES's linear solve: a factorization short of workspace is
         # redone (set_up_factored), and GAMG's finest level is made for the new matrix
-        snes.getKSP().setOperators(jacobian, preconditioner)
-        set_up_step_ksp(snes.getKSP(), self._finest)
+        ksp = snes.getKSP()
+        ksp.setOperators(jacobian, preconditioner)
+        if self._afresh:  # a retried step (see solve): no earlier interpolation kept
+            set_up_afresh(ksp, self.method, self._finest)
+        else:
+            set_up_step_ksp(ksp, self._finest)
+        self._interpolation_kept = self._keeps_interpolation and self._set_up and not self._afresh
+        self._set_up = True
 
     # -- the VI-aware line search ---------------------------------------------
     def _exact_line_search(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:
@@ -374,15 +394,39 @@ class ContactStepSolver:
                 self.reused_steps += 1
                 self._verify(u, t)
                 return iterations
-        before = self.jacobian_builds
-        self.snes.solve(None, u)
-        reason = self.snes.getConvergedReason()
-        newton, linear = self.snes.getIterationNumber(), self.snes.getLinearSolveIterations()
-        self.factorizations += self.jacobian_builds - before
+        u.copy(self._start)
+        reason, newton, linear = self._snes_solve(u)
+        retried = reason == Reason.DIVERGED_LINEAR_SOLVE and self._interpolation_kept
+        if retried:
+            # an interpolation made for an earlier Jacobian may not serve this one: the step
+            # again from u_0, once, each Jacobian with a hierarchy of its own
+            self.fresh_preconditioners += 1
+            self._start.copy(u)
+            self._failure = None
+            self._solved_by_step = False
+            self._afresh = True
+            try:
+                set_up_afresh(self.snes.getKSP(), self.method, self._finest)
+                reason, newton_again, linear_again = self._snes_solve(u)
+            finally:
+                self._afresh = False
+            self._interpolation_kept = False
+            newton, linear = newton + newton_again, linear + linear_again
         if reason <= 0:
-            raise SolverError(f"Newton failed at t = {t:.6g}: {self._why(reason, newton, linear)}")
+            again = " (redone with a new preconditioner hierarchy)" if retried else ""
+            raise SolverError(
+                f"Newton failed at t = {t:.6g}{again}: {self._why(reason, newton, linear)}"
+            )
         self._verify(u, t)
         return newton, linear
+
+    def _snes_solve(self, u: PETSc.Vec) -> tuple[int, int, int]:
+        """SNES from u (overwritten): its reason, Newton and linear iterations.  Collective."""
+        before = self.jacobian_builds
+        self.snes.solve(None, u)
+        self.factorizations += self.jacobian_builds - before
+        snes = self.snes
+        return snes.getConvergedReason(), snes.getIterationNumber(), snes.getLinearSolveIterations()
 
     def _verify(self, u: PETSc.Vec, t: float) -> None:
         """Check a step accepted as an exact solve, once per Jacobian build.  Collective.

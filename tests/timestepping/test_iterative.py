@@ -10,15 +10,18 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from parefg.errors import InputError
+from parefg.errors import InputError, SolverError
 from parefg.geometry.partition import bisection_parts
 from parefg.parallel import set_from_options
 from parefg.run import prepare
 from parefg.scene.loader import load_scene
+from parefg.timestepping import linear_solver, step_solver
 from parefg.timestepping.linear_solver import (
     SOLVER_METHODS,
     configure_finest_blocks,
+    keeps_interpolation,
     schwarz_blocks,
+    set_up_afresh,
     set_up_step_ksp,
 )
 from parefg.timestepping.loop import time_loop
@@ -336,3 +339,108 @@ def test_the_rotation_mode_pays_where_rotation_is_soft():
     only_translations.setNearNullSpace(PETSc.NullSpace().create(vectors=translations))
     without_rotation = _cg(only_translations, b)
     assert with_rotation < without_rotation, (with_rotation, without_rotation)
+
+
+KEPT = ["discretization.h=0.125", "discretization.degree=2", "time.T=0.3"]  # 4 Jacobians
+
+
+def _run_to_the_end(overrides):
+    sim = prepare(MPI.COMM_WORLD, "square", [*overrides, "solver.method=iterative"])
+    state = time_loop(sim, sim.start(), 1)
+    return sim, sim.errors(state.u, sim.scene.time.T)
+
+
+def test_gamg_keeps_its_interpolation_for_a_new_jacobian_unless_told_not_to():
+    """The method's GAMG keeps the first Jacobian's interpolation (only the coarse
+    matrices follow a new active set); -pc_gamg_reuse_interpolation false makes each
+    Jacobian its own hierarchy."""
+    sim, _ = _run_to_the_end(KEPT)
+    assert sim.solver.jacobian_builds >= 2
+    assert keeps_interpolation(sim.solver.snes.getKSP(), SOLVER_METHODS["iterative"])
+    assert sim.solver._interpolation_kept  # the last set-up kept the first one's
+    options = PETSc.Options()
+    options["pc_gamg_reuse_interpolation"] = "false"
+    try:
+        fresh, _ = _run_to_the_end(KEPT)
+    finally:
+        options.delValue("pc_gamg_reuse_interpolation")
+    assert fresh.solver.jacobian_builds >= 2
+    assert not fresh.solver._keeps_interpolation  # read with the options, at creation
+    assert not fresh.solver._interpolation_kept
+
+
+def _finest_interpolation(pc: PETSc.PC) -> PETSc.Mat:
+    return pc.getMGInterpolation(pc.getMGLevels() - 1).copy()
+
+
+def test_a_preconditioner_set_up_afresh_has_a_new_interpolation_and_its_finest_level():
+    """set_up_afresh on the KSP of a run that kept the first Jacobian's interpolation:
+    GAMG set up (PETSc skips the set-up of a new PC of a KSP set up for its operators),
+    an interpolation made for the last Jacobian, the method's finest smoother (m = 2:
+    Jacobi plus the coarse-trace blocks), and CG still converges with it."""
+    sim, _ = _run_to_the_end(KEPT)
+    assert sim.solver._interpolation_kept
+    ksp, method = sim.solver.snes.getKSP(), SOLVER_METHODS["iterative"]
+    kept = _finest_interpolation(ksp.getPC())
+    set_up_afresh(ksp, method, sim.solver._finest)
+    pc = ksp.getPC()
+    assert pc.getType() == "gamg" and pc.getMGLevels() >= 2
+    assert pc.getMGSmoother(pc.getMGLevels() - 1).getPC().getType() == "composite"
+    new = _finest_interpolation(pc)
+    assert new.getSize() != kept.getSize() or not new.equal(kept)
+    b = sim.solver.jacobian.createVecLeft()
+    b.set(1.0)
+    ksp.solve(b, sim.solver.jacobian.createVecRight())
+    assert ksp.getConvergedReason() > 0, ksp.getConvergedReason()
+
+
+def _spoil_kept_set_ups(monkeypatch, afresh_too=False):
+    """From the second set-up of the step KSP through set_up_step_ksp (a kept
+    interpolation) on, its finest smoother becomes Richardson scaled by -1: a negative
+    preconditioner, which CG reports as DIVERGED_INDEFINITE_PC, as with a stale
+    hierarchy.  set_up_afresh's set-ups are left alone unless ``afresh_too``."""
+    original, set_ups = linear_solver.set_up_step_ksp, []
+
+    def spoiled(ksp, finest):
+        original(ksp, finest)
+        set_ups.append(ksp)
+        pc = ksp.getPC()
+        if len(set_ups) == 1 or pc.getType() != "gamg":
+            return
+        smoother = pc.getMGSmoother(pc.getMGLevels() - 1)
+        name = (smoother.getOptionsPrefix() or "") + "ksp_richardson_scale"
+        options = PETSc.Options()
+        options[name] = -1.0
+        smoother.setType(PETSc.KSP.Type.RICHARDSON)
+        smoother.setFromOptions()
+        options.delValue(name)
+        smoother.setUp()
+
+    monkeypatch.setattr(step_solver, "set_up_step_ksp", spoiled)
+    if afresh_too:
+        monkeypatch.setattr(linear_solver, "set_up_step_ksp", spoiled)
+
+
+def test_a_step_failing_with_a_kept_interpolation_is_redone_with_new_ones(monkeypatch):
+    """A linear solve that fails with a kept interpolation redoes the step from u_0, once,
+    each Jacobian with a hierarchy of its own: the run ends with the errors of the run
+    without the fault (measured: 3e-11 relative); with the retry switched off, the same
+    fault fails the run."""
+    _, expected = _run_to_the_end(KEPT)
+    _spoil_kept_set_ups(monkeypatch)
+    sim, errors = _run_to_the_end(KEPT)
+    assert sim.solver.fresh_preconditioners >= 1
+    for key in ("l2_rel", "h1_rel"):
+        assert errors[key] == pytest.approx(expected[key], rel=1e-6)
+    sim = prepare(MPI.COMM_WORLD, "square", [*KEPT, "solver.method=iterative"])
+    sim.solver._keeps_interpolation = False  # no retry
+    with pytest.raises(SolverError, match="DIVERGED_INDEFINITE_PC"):
+        time_loop(sim, sim.start(), 1)
+
+
+def test_a_step_failing_again_with_new_hierarchies_says_so(monkeypatch):
+    _spoil_kept_set_ups(monkeypatch, afresh_too=True)
+    sim = prepare(MPI.COMM_WORLD, "square", [*KEPT, "solver.method=iterative"])
+    with pytest.raises(SolverError, match=r"\(redone with a new preconditioner hierarchy\)"):
+        time_loop(sim, sim.start(), 1)
+    assert sim.solver.fresh_preconditioners == 1
