@@ -225,6 +225,14 @@ def owned_rows(
     return _merge_rows(own, rows, cols, data)
 
 
+def add_entries(own: sp.csr_matrix, rows, cols, data) -> sp.csr_matrix:
+    """``own`` (canonical CSR) plus the COO entries (rows, cols, data), explicit zeros kept:
+    only the rows they touch are summed again (see :func:`_merge_rows`).  Local."""
+    if len(rows) == 0:
+        return own
+    return _merge_rows(own, np.asarray(rows), np.asarray(cols), np.asarray(data))
+
+
 def global_columns(local: sp.spmatrix, ids: np.ndarray, n_cols: int) -> sp.csr_matrix:
     """``local`` with column j renamed ``ids[j]`` (ascending: sorted columns stay sorted),
     of ``n_cols`` columns.  Not collective."""
@@ -279,21 +287,6 @@ def _merge_rows(own: sp.csr_matrix, rows, cols, data) -> sp.csr_matrix:
     merged = sp.csr_matrix((values, indices, indptr), shape=own.shape)
     merged.has_canonical_format = True
     return merged
-
-
-def with_pattern(matrix: sp.csr_matrix, pattern: sp.csr_matrix) -> sp.csr_matrix:
-    """``matrix`` with explicit zeros added wherever ``pattern`` has an entry.  Local.
-
-    scipy's sparse sum drops zeros; going through COO keeps them, which reserves the
-    Gamma_C coupling in A_const so that contact terms never change the PETSc pattern.
-    """
-    if pattern.nnz == 0:
-        return sp.csr_matrix(matrix)
-    a, p = matrix.tocoo(), pattern.tocoo()
-    rows = np.concatenate([a.row, p.row])
-    cols = np.concatenate([a.col, p.col])
-    data = np.concatenate([a.data, np.zeros(p.nnz)])
-    return sp.coo_matrix((data, (rows, cols)), shape=matrix.shape).tocsr()
 
 
 # -- PETSc construction -----------------------------------------------------------------

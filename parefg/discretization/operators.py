@@ -37,7 +37,7 @@ from parefg.geometry.distribute import partition_on_root
 from parefg.geometry.gmsh_mesh import mesh_on_root
 from parefg.geometry.grid_parts import mesh_by_parts
 from parefg.geometry.partition import Partition
-from parefg.parallel import global_columns, owned_rows, raise_everywhere
+from parefg.parallel import add_entries, global_columns, owned_rows, raise_everywhere
 from parefg.profiling import phase
 
 
@@ -87,6 +87,37 @@ class Discretization:
         """
         matrices = {"mass": self.mass, "stiffness": self.stiffness, "dirichlet": self.dirichlet}
         return {name: scipy_rows(matrix) for name, matrix in matrices.items()}
+
+    def combined_rows(self, mass_coefficient: float, reserve_contact: bool) -> sp.csr_matrix:
+        """This rank's rows of mass_coefficient M + K + D as scipy CSR (global columns),
+        with the Gamma_C pattern reserved (explicit zeros) where ``reserve_contact``.
+
+        The pattern is the union of the terms' (entries summing to 0 are kept).  M's
+        entries are placed into K's by position (K's pattern holds M's, :func:`_mass_slots`),
+        and D and the reserved pattern, which touch only the rows near the boundary, are
+        merged into those rows alone: at 2e5 DOFs (m = 1) 0.6 s against 3.3 s for scipy's
+        sums and a COO pass over every entry.  The values are those sums' (x + y + 0 in the
+        same order).  Not collective.
+        """
+        stiffness = scipy_rows(self.stiffness)
+        matrix = stiffness
+        if mass_coefficient:
+            mass = scipy_rows(self.mass)
+            slots = _mass_slots(stiffness, mass)
+            if slots is None:  # not M's layout within K: scipy's sum (drops exact zeros)
+                matrix = (mass_coefficient * mass + stiffness).tocsr()
+            else:  # in place: scipy_rows made the arrays for this call
+                stiffness.data[slots] = mass_coefficient * mass.data + stiffness.data[slots]
+        boundary = scipy_rows(self.dirichlet).tocoo()
+        rows, cols, data = [boundary.row], [boundary.col], [boundary.data]
+        if reserve_contact:
+            pattern = self.contact_pattern.tocoo()
+            rows, cols, data = (
+                rows + [pattern.row],
+                cols + [pattern.col],
+                data + [np.zeros(pattern.nnz)],
+            )
+        return add_entries(matrix, np.concatenate(rows), np.concatenate(cols), np.concatenate(data))
 
     def create_vec(self) -> PETSc.Vec:
         """A zero DOF vector with this rank's block.  Collective."""
@@ -433,6 +464,25 @@ def scipy_rows(matrix: PETSc.Mat) -> sp.csr_matrix:
     """This rank's rows of a PETSc AIJ matrix as scipy CSR with global columns (a copy)."""
     indptr, indices, data = matrix.getValuesCSR()
     return sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, matrix.getSize()[1]))
+
+
+def _mass_slots(stiffness: sp.csr_matrix, mass: sp.csr_matrix) -> np.ndarray | None:
+    """The entry of K (this rank's rows, canonical CSR) holding each entry of M, or None
+    where M is not in K's layout.
+
+    Both are interleaved from one scalar pattern (:func:`interleaved`): row 2I + a of K
+    holds (2J, 2J + 1) for each J of the scalar row I, M's only 2J + a, so M's k-th entry
+    of a row is K's (2k + a)-th.  Checked: the row lengths, and the columns found.
+    """
+    if not np.array_equal(stiffness.indptr, 2 * mass.indptr):  # K's rows twice as long
+        return None
+    # M's entry p of row r sits in K's pair p (entries 2p, 2p + 1) at the row's component
+    # r % 2 (a rank's rows start at an even DOF: whole nodes)
+    component = np.repeat((np.arange(mass.shape[0]) % 2).astype(np.int8), np.diff(mass.indptr))
+    slots = 2 * np.arange(mass.nnz, dtype=np.int64) + component
+    if not np.array_equal(stiffness.indices[slots], mass.indices):
+        return None
+    return slots
 
 
 def build_discretization(comm, scene, budget: Budget | None = None) -> Discretization:

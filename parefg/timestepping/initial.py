@@ -15,7 +15,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from parefg.errors import SolverError
-from parefg.parallel import petsc_matrix, set_from_options, with_pattern
+from parefg.parallel import petsc_matrix, set_from_options
 from parefg.timestepping.linear_solver import (
     SOLVER_METHODS,
     LinearStepSolver,
@@ -131,10 +131,7 @@ class InitialState:
         this projection for their optimal error bounds.  Collective; one factorization more.
         """
         rhs = self._projection_rhs()
-        owned = self.disc.owned
-        matrix = (owned["stiffness"] + owned["dirichlet"]).tocsr()
-        if self.law is not None:
-            matrix = with_pattern(matrix, self.disc.contact_pattern)
+        matrix = self.disc.combined_rows(0.0, reserve_contact=self.law is not None)
         operator = petsc_matrix(self.comm, matrix, matrix.shape[0], self.disc.n_dofs, block_size=2)
         symmetric = self.disc.symmetric
         operator.setOption(PETSc.Mat.Option.SPD, symmetric)

@@ -16,7 +16,7 @@ from parefg.boundary import BoundaryKind
 from parefg.errors import SolverError
 from parefg.guards import DataGuard, RigidModes, require_constraints
 from parefg.mechanics.contact import ContactLaw
-from parefg.parallel import petsc_matrix, with_pattern
+from parefg.parallel import petsc_matrix
 from parefg.profiling import phase
 from parefg.timestepping.coulomb import CoulombStepSolver
 from parefg.timestepping.energy import EnergyLedger
@@ -106,11 +106,7 @@ class Simulation(InitialState, EnergyLedger, StepChecks):
 
     def _a_const(self) -> PETSc.Mat:
         """A_const = c_M M + K + D, with the Gamma_C pattern reserved (D: Dirichlet methods)."""
-        owned = self.disc.owned
-        matrix = (
-            self.scheme.mass_coefficient * owned["mass"] + owned["stiffness"] + owned["dirichlet"]
-        )
-        matrix = with_pattern(matrix.tocsr(), self.disc.contact_pattern)
+        matrix = self.disc.combined_rows(self.scheme.mass_coefficient, reserve_contact=True)
         n_local = matrix.shape[0]
         a_const = petsc_matrix(self.comm, matrix, n_local, self.disc.n_dofs, block_size=2)
         a_const.setOption(PETSc.Mat.Option.SPD, self.disc.symmetric)

@@ -14,7 +14,7 @@ from held_nodes import global_mls
 from mpi4py import MPI
 
 from parefg.discretization.assembly import Coupling
-from parefg.discretization.operators import build_discretization
+from parefg.discretization.operators import _mass_slots, build_discretization
 from parefg.parallel import owned_rows
 from parefg.scene.loader import load_scene
 
@@ -331,3 +331,42 @@ def test_owned_rows_sums_contributions_and_keeps_zeros(comm):
     np.testing.assert_array_equal(owned.toarray(), expected)
     # one explicit zero in column 0 per row, except row 0 where it meets the diagonal
     assert owned.nnz == 2 * (stop - start) - (1 if start == 0 and stop > 0 else 0)
+
+
+def _pattern(matrix: sp.spmatrix) -> sp.csr_matrix:
+    """The stored entries of ``matrix`` (explicit zeros included) as ones."""
+    ones = sp.csr_matrix(matrix, copy=True)
+    ones.data[:] = 1.0
+    return ones
+
+
+@pytest.mark.parametrize("coefficient", [0.0, 800.0])
+def test_combined_rows_are_the_sum_on_the_union_of_the_patterns(case, coefficient):
+    """c M + K + D with the Gamma_C pattern reserved: the values of scipy's sum, to the
+    bit (the same additions), every entry of every term and of the pattern stored (scipy's
+    sum drops what cancels), M placed into K's entries by position (the fast path)."""
+    _, disc, _ = case
+    owned = disc.owned
+    combined = disc.combined_rows(coefficient, reserve_contact=True)
+    expected = (coefficient * owned["mass"] + owned["stiffness"]) + owned["dirichlet"]
+    assert (combined != expected).nnz == 0  # exact
+    covered = _pattern(combined)
+    for term in (owned["mass"], owned["stiffness"], owned["dirichlet"], disc.contact_pattern):
+        assert (_pattern(term) - _pattern(term).multiply(covered)).nnz == 0
+    assert _mass_slots(owned["stiffness"], owned["mass"]) is not None
+    without = disc.combined_rows(coefficient, reserve_contact=False)
+    assert (without != expected).nnz == 0
+    assert (_pattern(without) - _pattern(without).multiply(covered)).nnz == 0
+
+
+def test_mass_slots_refuse_another_layout(case):
+    """M not in K's interleaved layout (a row longer, or another column): no positions,
+    so combined_rows takes scipy's sum instead."""
+    _, disc, _ = case
+    owned = disc.owned
+    stiffness, mass = owned["stiffness"], owned["mass"]
+    assert _mass_slots(stiffness, stiffness) is None  # rows as long as K's
+    shifted = mass.copy()
+    shifted.indices = shifted.indices.copy()
+    shifted.indices[0] = (shifted.indices[0] + 1) % shifted.shape[1]
+    assert _mass_slots(stiffness, shifted) is None
