@@ -11,9 +11,11 @@ N) and from those the peak resident memory of the largest rank::
                                        + matrices     nnz(A) = 4 N R   (R = nodes within 2 s c)
                                        + Cholesky     nnz(L) = nnz(A) * fill(2 N)  (direct only)
 
-The coefficients are measured (``scripts/bench/calibrate_budget.py``: the estimate is 0.9-1.5
-times summary.json's ``peak_rss_mb``, direct and iterative, m = 1, 2 and 3, 2026-12-07;
-up to 2.2x for m = 1 below 2e4 DOFs, where the process's own base dominates); the direct
+The coefficients are measured (``scripts/bench/calibrate_budget.py``: the estimate is
+0.88-1.43 times summary.json's ``peak_rss_mb`` with the direct solver, m = 1, 2 and 3, from
+2e3 DOFs at m = 2 and 3; 1.37-1.71x with CG + GAMG at m = 1 from 7e4 DOFs, 1.06-1.23x at
+m = 2 to 3e4 DOFs and 1.58 / 1.96x at 5e4 DOFs on 1 / 2 ranks; up to 2.1x for m = 1 below
+2e4 DOFs, where the process's own base dominates; 2026-12-07, session 43); the direct
 factorization's fill is a rough fit of MUMPS's nested-dissection fill on these stencils,
 growing like log N.
 :func:`cloud_size` counts the same from an actual node cloud.  Not collective.
@@ -55,7 +57,9 @@ NODE_BYTES = 400  # node cloud and partition (every rank's, or its share of a gr
 GRADIENT_SLOT_BYTES = 12  # per (point, neighbour) with gradients, consumed cell by cell
 VALUE_SLOT_BYTES = 60  # per (point, neighbour), values only (boundary points)
 PAIR_BYTES = 18  # per coupled node pair of one cell (Gram assembly, transient)
-ENTRY_BYTES = 60  # per nonzero of the DOF matrices (M, K, A_const, Jacobian; PETSc)
+# per nonzero of the DOF matrices (M, K, A_const, Jacobian; PETSc); 60 until A_const was
+# summed without scipy's temporaries (session 43: the 1e6-DOF m = 1 peak 9788 -> 6718 MB)
+ENTRY_BYTES = 45
 FACTOR_BYTES = 12  # per nonzero of the Cholesky factor (MUMPS), direct solvers only
 
 # The domain's value operator S is not built from this size (CSR bytes on some rank) on:
