@@ -87,9 +87,11 @@ def _quad_cells(coords, quads, order, ids):
     dshape_dxi = 0.25 * np.column_stack([-(1 - eta), 1 - eta, 1 + eta, -(1 + eta)])
     dshape_deta = 0.25 * np.column_stack([-(1 - xi), -(1 + xi), 1 + xi, 1 - xi])
     corners = coords[quads[ids]]  # (n_cells, 4, 2)
-    points = np.einsum("qa,cad->cqd", shape, corners)  # (n_cells, n^2, 2)
-    dx_dxi = np.einsum("qa,cad->cqd", dshape_dxi, corners)  # (n_cells, n^2, 2)
-    dx_deta = np.einsum("qa,cad->cqd", dshape_deta, corners)
+    # one (n^2, 4) @ (4, 2) product per cell (matmul: 20x einsum's time at 1e6 points, and
+    # each cell's bits independent of the others in the call)
+    points = shape @ corners  # (n_cells, n^2, 2)
+    dx_dxi = dshape_dxi @ corners  # (n_cells, n^2, 2)
+    dx_deta = dshape_deta @ corners
     jacobian = dx_dxi[..., 0] * dx_deta[..., 1] - dx_dxi[..., 1] * dx_deta[..., 0]
     weights = reference_weights * np.abs(jacobian)  # (n_cells, n^2)
     return points.reshape(-1, 2), weights.ravel()
@@ -100,7 +102,7 @@ def _triangle_cells(coords, triangles, order, ids):
     reference, reference_weights = reference_triangle_rule(order)  # (n^2, 2), (n^2,)
     corners = coords[triangles[ids]]  # (n_cells, 3, 2)
     edges = corners[:, 1:, :] - corners[:, :1, :]  # (n_cells, 2, 2): x1 - x0, x2 - x0
-    points = corners[:, None, 0, :] + np.einsum("qe,ced->cqd", reference, edges)
+    points = corners[:, None, 0, :] + reference @ edges  # (n_cells, n^2, 2)
     twice_area = np.abs(edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0])
     weights = reference_weights[None, :] * twice_area[:, None]  # (n_cells, n^2)
     return points.reshape(-1, 2), weights.ravel()
