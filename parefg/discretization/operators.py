@@ -82,8 +82,9 @@ class Discretization:
         """This rank's rows of "mass", "stiffness", "dirichlet" as scipy CSR (global columns).
 
         Copies made on each access from the PETSc matrices (the values they were built from,
-        explicit zeros included), for combining them into new matrices: no scipy twin of a
-        PETSc matrix is kept.  Not collective.
+        explicit zeros included), for inspecting them: no scipy twin of a PETSc matrix is
+        kept, and the step matrices are combined by :meth:`combined_rows`, which copies only
+        what it sums.  Not collective.
         """
         matrices = {"mass": self.mass, "stiffness": self.stiffness, "dirichlet": self.dirichlet}
         return {name: scipy_rows(matrix) for name, matrix in matrices.items()}
