@@ -37,6 +37,7 @@ from parefg.geometry.distribute import partition_on_root
 from parefg.geometry.gmsh_mesh import mesh_on_root
 from parefg.geometry.grid_parts import mesh_by_parts
 from parefg.geometry.partition import Partition
+from parefg.geometry.patch_parts import mesh_by_patches
 from parefg.parallel import add_entries, global_columns, owned_rows, raise_everywhere
 from parefg.profiling import phase
 
@@ -193,8 +194,13 @@ class _Builder(BoundaryOperators):
         self.timings = {"mesh": 0.0, "neighbours": 0.0, "mls": 0.0, "assembly": 0.0}
         self.n_contact = 0
         with phase(self.timings, "mesh"):
-            # a rectangle's grid: each rank makes its own part (its size is the estimate's)
-            self.cloud, self.partition = mesh_by_parts(comm, scene) or self._partitioned_on_root()
+            # a rectangle's grid or the Z's patches: each rank makes its own part (its
+            # size is the estimate's)
+            self.cloud, self.partition = (
+                mesh_by_parts(comm, scene)
+                or mesh_by_patches(comm, scene)
+                or self._partitioned_on_root()
+            )
             # the nodes whose supports reach where this rank evaluates MLS (ghosts)
             box = evaluation_box(self.cloud, self.partition, comm.rank, self._grouping())
             self.cloud = add_ghosts(

@@ -163,11 +163,11 @@ def box_lattice(origin, size, h: float) -> tuple[np.ndarray, np.ndarray, tuple[i
     side (the one computation of :func:`_build_box`'s lattice and of
     :mod:`parefg.geometry.grid_parts`, which rebuilds it to the bit)."""
     (x0, y0), (lx, ly) = origin, size
-    n_x, n_y = _transfinite_cells(lx, h), _transfinite_cells(ly, h)
+    n_x, n_y = transfinite_cells(lx, h), transfinite_cells(ly, h)
     return np.array([x0, y0], dtype=float), np.array([lx / n_x, ly / n_y]), (n_x, n_y)
 
 
-def _transfinite_cells(length: float, h: float, at_least: int = 1) -> int:
+def transfinite_cells(length: float, h: float, at_least: int = 1) -> int:
     """Cells along a transfinite curve of this length: ceil(length / h), at least ``at_least``.
 
     The tolerance guards ceil against length / h landing a rounding error above an integer.
@@ -225,7 +225,7 @@ def _build_z(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> Gm
     gmsh.model.geo.synchronize()
     for (start, end), tag in lines.items():
         length = math.dist(Z_PATCH_POINTS[start], Z_PATCH_POINTS[end])
-        gmsh.model.mesh.setTransfiniteCurve(tag, _transfinite_cells(length, h, min_cells) + 1)
+        gmsh.model.mesh.setTransfiniteCurve(tag, transfinite_cells(length, h, min_cells) + 1)
     for surface, arrangement in zip(surfaces, Z_ARRANGEMENTS, strict=True):
         _set_transfinite_surface(gmsh, surface, cells, arrangement)
     # Boundary curve -> the name of the outline edge it lies on (the split edges: 0 and 5).

@@ -3,9 +3,10 @@
 A run of a built-in scene at its defaults then reads both (read only, as
 :mod:`parefg.user_cache` describes) instead of importing sympy to derive the scene (~0.3 s)
 and gmsh to mesh it (~0.2 s): `parefg run square` starts as fast as with a warm user
-cache, without writing anywhere but its output directory.  A rectangle's grid is not
-meshed by gmsh in a run (each rank makes its part, parefg.geometry.grid_parts), so only
-the other domains' meshes are prebuilt.  `make setup` runs this once per
+cache, without writing anywhere but its output directory.  A rectangle's grid and the Z's
+patches are not meshed by gmsh in a run (each rank makes its part,
+parefg.geometry.grid_parts and patch_parts), so only the other domains' meshes are
+prebuilt (none of today's built-in scenes has one).  `make setup` runs this once per
 change of the package source (the entries' keys hash it, so stale ones would only miss).
 The directory is rebuilt whole, in a temporary sibling renamed into place.
 
@@ -30,6 +31,7 @@ from mpi4py import MPI  # noqa: E402
 from parefg import user_cache  # noqa: E402
 from parefg.discretization.operators import scene_cloud_on_root  # noqa: E402
 from parefg.geometry.grid_parts import scene_grid  # noqa: E402
+from parefg.geometry.patch_parts import patched  # noqa: E402
 from parefg.scene.loader import builtin_scenes, load_scene  # noqa: E402
 
 
@@ -44,7 +46,7 @@ def prebuild(target: Path) -> list[str]:
     names = sorted(builtin_scenes())
     for name in names:
         scene = load_scene(name)  # derives and stores the scene's data
-        if scene_grid(scene) is None:  # a run meshes it with gmsh
+        if scene_grid(scene) is None and not patched(scene):  # a run meshes it with gmsh
             scene_cloud_on_root(MPI.COMM_SELF, scene)  # the run's mesh inputs
     shutil.rmtree(target, ignore_errors=True)
     os.replace(staging, target)

@@ -1,7 +1,7 @@
 """Light commands stay light: ``import parefg.cli``, ``parefg --help`` and ``parefg scenes``
 import none of the heavy layers a run needs (sympy, matplotlib, h5py, numba, gmsh), a
 run whose scene data and mesh are cached imports neither sympy nor gmsh, a run on a
-rectangle never imports gmsh (each rank makes its part of the grid), and a run of the
+rectangle or the Z never imports gmsh (each rank makes its part), and a run of the
 default scene (small: numpy kernels, parefg.discretization.backends) never imports numba.
 
 Each case runs in a fresh interpreter (``sys.modules`` of this one is full of them) and
@@ -17,8 +17,10 @@ import pytest
 from conftest import QUICK, REPO, mpi_env
 
 HEAVY = ("sympy", "matplotlib", "h5py", "numba", "gmsh")
-# scene -> what its first run imports of gmsh and sympy: a rectangle is never meshed by gmsh
-FIRST_RUN_IMPORTS = {"square": "sympy", "z": "gmsh sympy"}
+# scene -> what its first run imports of gmsh and sympy: the built-in domains are made part
+# by part, without gmsh (grid_parts, patch_parts); a jittered Z is meshed by gmsh
+FIRST_RUN_IMPORTS = {"square": "sympy", "z": "sympy"}
+JITTERED_Z = ["z", "--set", "discretization.jitter=0.1"]
 PROBE = """
 import sys
 from parefg import cli
@@ -65,22 +67,23 @@ def probe_run(argv, heavy, env, cwd=None) -> tuple[str, dict]:
 
 
 @pytest.mark.serial_only
-@pytest.mark.parametrize("scene", FIRST_RUN_IMPORTS)
-def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path, scene):
-    """The first run derives the scene's data (sympy) and meshes (gmsh; not a rectangle),
-    the next one reads both from the user cache: same results, and neither sympy nor gmsh
-    imported.  Neither run imports numba (the kernels compiled ahead of time, or numpy's
-    below backends.NUMBA_MIN_NODES)."""
+@pytest.mark.parametrize("scene, first", [*FIRST_RUN_IMPORTS.items(), ("jittered-z", "gmsh sympy")])
+def test_a_run_of_a_cached_scene_imports_neither_sympy_nor_gmsh(tmp_path, scene, first):
+    """The first run derives the scene's data (sympy) and meshes (gmsh; only the jittered
+    Z), the next one reads both from the user cache: same results, and neither sympy nor
+    gmsh imported.  Neither run imports numba (the kernels compiled ahead of time, or
+    numpy's below backends.NUMBA_MIN_NODES)."""
     env = {**mpi_env(), "PAREFG_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("PAREFG_SCENE_CACHE", None)
     env.pop("PAREFG_KERNELS", None)
     imported, results = [], []
+    source = JITTERED_Z if scene == "jittered-z" else [scene]
     for run in ("derived", "cached"):
-        argv = ["run", scene, "--quiet", "--out", str(tmp_path / run), *QUICK]
+        argv = ["run", *source, "--quiet", "--out", str(tmp_path / run), *QUICK]
         heavy, summary = probe_run(argv, ("gmsh", "numba", "sympy"), env)
         imported.append(heavy)
         results.append(summary)
-    assert imported == [FIRST_RUN_IMPORTS[scene], ""]
+    assert imported == [first, ""]
     assert results[0] == results[1]
 
 
@@ -104,7 +107,8 @@ def test_a_run_of_a_prebuilt_scene_imports_neither_sympy_nor_gmsh_and_writes_now
         capture_output=True, text=True, env=env, timeout=300,
     )  # fmt: skip
     assert built.returncode == 0, built.stderr
-    assert {path.parent.name for path in prebuilt.rglob("*.*")} == {"scenes", "meshes"}
+    # no built-in scene is meshed by gmsh in a run: no mesh prebuilt
+    assert {path.parent.name for path in prebuilt.rglob("*.*")} == {"scenes"}
     before = sorted((str(path), path.stat().st_mtime_ns) for path in prebuilt.rglob("*"))
     imported, results = [], []
     for run, extra in (("prebuilt", {}), ("derived", {"PAREFG_CACHE": "0"})):
