@@ -15,19 +15,19 @@ and the cell next to it.
 
 Numbering.  A node shared by several patches belongs to the first of them in
 :data:`NUMBERING`; each patch then numbers an index rectangle, its lattice without the
-sides glued to an earlier patch (:data:`GLUED`).  Patch after patch, its nodes are
-numbered row by row: ``original_index``, the same for any rank count (result.h5's node
-order).  Below :data:`PATCH_PARTS_FROM` parts the partition cuts that order into equal
-runs (consecutive patches share a side, so a run crossing patches stays compact); from
-there on each patch gets whole parts in proportion to its nodes and numbers them in
-serpentine order of square tiles (row by row within a tile), so the run a rank owns is
-a compact piece of one patch.  A cell belongs to the part of its lower-left corner, or,
-where an earlier patch numbers that node, of the nearest corner its own patch numbers.
+sides glued to an earlier patch (:data:`GLUED`).  The nodes are numbered band by band
+(:data:`BANDS`: the bottom strip, the parallelogram, the top strip), row by row, each
+row left to right: ``original_index``, the same for any rank count (result.h5's node
+order).  Below :data:`PATCH_PARTS_FROM` parts the partition cuts that numbering into
+equal runs, horizontal bands; from there on each patch gets whole parts in proportion
+to its nodes and numbers them in serpentine order of square tiles (row by row within a
+tile), so the run a rank owns is a compact piece of one patch.  A cell belongs to the
+part of its lower-left corner, or, where an earlier patch numbers that node, of the
+nearest corner its own patch numbers.
 
 The coordinates are gmsh's up to round-off (~1e-12: gmsh blends the same corners); the
 cells are gmsh's (each triangle from the same corner), cells and segments in another
-order.  A jittered cloud is meshed on rank 0.  Nothing
-here is collective.
+order.  A jittered cloud is meshed on rank 0.  Nothing here is collective.
 """
 
 from __future__ import annotations
@@ -51,6 +51,9 @@ from parefg.geometry.shapes import (
 # The order in which the patches number their nodes: bottom-left, bottom-right, the
 # parallelogram, top-right, top-left (each shares a side with the one before).
 NUMBERING = (0, 1, 2, 4, 3)
+# The numbering's bands, bottom to top: the bottom strip (two patches side by side, their
+# rows level), the parallelogram, the top strip; each band row by row, a row left to right.
+BANDS = ((0, 1), (2,), (3, 4))
 # The glued sides, (patch, side) -> (a patch earlier in NUMBERING, side): the nodes of the
 # first side are those of the second, at the same index along it.  Side 0 is j = 0, 1 is
 # i = n, 2 is j = m, 3 is i = 0 (i, j: a patch's own lattice indices); the two sides of a
@@ -68,9 +71,8 @@ TRIANGLE_START = ((0, 0), (0, 0), (1, 0), (0, 0), (1, 1))
 # the outline edge (Z_EDGE_NAMES) each curve of Z_BOUNDARY lies on (as _build_z)
 EDGE_OF_CURVE = (0, 0, 1, 2, 3, 4, 5, 5, 6, 7, 8, 9)
 # From this many parts on, no part crosses a patch boundary (each patch gets whole parts,
-# so the largest part is within ~10 % of the mean; fewer parts are runs of the row-by-row
-# numbering, equal to one node, compact but for a run from the top of the top-right patch
-# to the bottom of the top-left one).
+# the largest part within ~10 % of the mean); fewer parts are equal runs of the numbering:
+# horizontal bands, which grow thin as the parts grow many.
 PATCH_PARTS_FROM = 4 * len(Z_PATCHES)
 
 
@@ -79,16 +81,19 @@ class Lattice:
     """The Z's patches at one h, and a partition of their nodes (module docstring).
 
     Arrays are indexed by patch.  ``numbered[p]`` = (i0, i1, j0, j1): patch p numbers the
-    nodes i0 <= i < i1, j0 <= j < j1, from ``offsets[p]`` on; ``tiles[p]`` is the side of
-    the partition's tiles there (0: row by row, the numbering itself).
+    nodes i0 <= i < i1, j0 <= j < j1, band after band (:data:`BANDS`) from
+    ``band_offsets``.  The partition's order is that numbering where ``tiles`` is None,
+    else patch after patch (:data:`NUMBERING`) from ``patch_offsets``, each in serpentine
+    order of ``tiles[p]``-wide square tiles (0: row by row).
     """
 
     corners: np.ndarray  # (n_patches, 4, 2), counter-clockwise, corner k starts side k
     n_cells: np.ndarray  # (n_patches, 2) int64: n (sides 0, 2) and m (sides 1, 3)
     numbered: np.ndarray  # (n_patches, 4) int64
-    offsets: np.ndarray  # (n_patches,) int64
+    band_offsets: np.ndarray  # (n_bands,) int64
+    patch_offsets: np.ndarray  # (n_patches,) int64
     cell_offsets: np.ndarray  # (n_patches,) int64: first number of each patch's cells
-    tiles: np.ndarray  # (n_patches,) int64
+    tiles: np.ndarray | None  # (n_patches,) int64
     node_ranges: np.ndarray  # (n_parts + 1,) int64
     cells: str
 
@@ -126,32 +131,67 @@ class Lattice:
         return patch, i, j
 
     def row_number(self, patch, i, j) -> np.ndarray:
-        """(n,) the row-by-row number of the nodes (patch, i, j) its patch numbers."""
-        i0, i1, j0, _ = self.numbered[patch].T
-        return self.offsets[patch] + (j - j0) * (i1 - i0) + (i - i0)
+        """(n,) the number of the nodes (patch, i, j) its patch numbers: band after band,
+        row by row, each row left to right (``original_index``)."""
+        number = np.empty(len(patch), dtype=np.int64)
+        i0, i1, j0, j1 = self.numbered.T
+        for band, members in enumerate(BANDS):
+            for k, q in enumerate(members):
+                mine = patch == q
+                row = j[mine]
+                # the band's rows below, and this row's nodes in the patches to the left
+                below = sum(
+                    (i1[m] - i0[m]) * np.clip(row - j0[m], 0, j1[m] - j0[m]) for m in members
+                )
+                left = sum((i1[m] - i0[m]) * ((row >= j0[m]) & (row < j1[m])) for m in members[:k])
+                number[mine] = self.band_offsets[band] + below + left + (i[mine] - i0[q])
+        return number
 
     def global_ids(self, patch, i, j) -> np.ndarray:
         """(n,) partition numbers of the nodes (patch, i, j) its patch numbers."""
+        if self.tiles is None:
+            return self.row_number(patch, i, j)
         i0, i1, j0, j1 = self.numbered[patch].T
-        u, v = i - i0, j - j0
-        return self.offsets[patch] + _tile_index(u, v, i1 - i0, j1 - j0, self.tiles[patch])
+        tiled = _tile_index(i - i0, j - j0, i1 - i0, j1 - j0, self.tiles[patch])
+        return self.patch_offsets[patch] + tiled
 
     def nodes_numbered(self, start: int, stop: int):
-        """(patch, i, j) of the nodes numbered start .. stop - 1, in that order."""
-        patches, columns, rows = [], [], []
-        for p in NUMBERING:
-            count = int(_count(self.numbered[p]))
-            first, last = max(start, self.offsets[p]), min(stop, self.offsets[p] + count)
-            if first >= last:
-                continue
-            i0, i1, j0, j1 = (int(v) for v in self.numbered[p])
-            local = np.arange(first - self.offsets[p], last - self.offsets[p], dtype=np.int64)
-            u, v = _tile_position(local, i1 - i0, j1 - j0, int(self.tiles[p]))
-            patches.append(np.full(len(local), p, dtype=np.int64))
-            columns.append(u + i0)
-            rows.append(v + j0)
-        empty = [np.empty(0, dtype=np.int64)]
-        return tuple(np.concatenate(empty + a) for a in (patches, columns, rows))
+        """(patch, i, j) of the nodes numbered start .. stop - 1 in the partition's order,
+        in that order."""
+        found = [(np.empty(0, dtype=np.int64),) * 3]
+        if self.tiles is None:
+            for band, members in enumerate(BANDS):
+                found.append(self._band_nodes(band, members, start, stop))
+        else:
+            for p in NUMBERING:
+                count = int(_count(self.numbered[p]))
+                offset = int(self.patch_offsets[p])
+                first, last = max(start, offset), min(stop, offset + count)
+                if first >= last:
+                    continue
+                i0, i1, j0, j1 = (int(v) for v in self.numbered[p])
+                local = np.arange(first - offset, last - offset, dtype=np.int64)
+                u, v = _tile_position(local, i1 - i0, j1 - j0, int(self.tiles[p]))
+                found.append((np.full(len(local), p, dtype=np.int64), u + i0, v + j0))
+        return tuple(np.concatenate(a) for a in zip(*found, strict=True))
+
+    def _band_nodes(self, band: int, members, start: int, stop: int):
+        """(patch, i, j) of the band's nodes numbered start .. stop - 1."""
+        i0, i1, j0, j1 = self.numbered.T
+        rows = np.arange(max(j1[m] for m in members), dtype=np.int64)
+        widths = [(i1[m] - i0[m]) * ((rows >= j0[m]) & (rows < j1[m])) for m in members]
+        row_starts = self.band_offsets[band] + np.concatenate([[0], np.cumsum(sum(widths))])
+        first, last = max(start, int(row_starts[0])), min(stop, int(row_starts[-1]))
+        number = np.arange(first, max(first, last), dtype=np.int64)
+        row = np.searchsorted(row_starts, number, side="right") - 1
+        along = number - row_starts[row]  # position in the row, left to right
+        patch = np.full(len(number), -1, dtype=np.int64)
+        i = np.zeros(len(number), dtype=np.int64)
+        for m, width in zip(members, widths, strict=True):
+            here = (patch < 0) & (along < width[row])
+            patch[here], i[here] = m, i0[m] + along[here]
+            along = along - np.where(patch < 0, width[row], 0)
+        return patch, i, row
 
     def part_of(self, ids: np.ndarray) -> np.ndarray:
         return np.searchsorted(self.node_ranges, ids, side="right") - 1
@@ -203,15 +243,14 @@ def lattice(h: float, cells: str, min_cells: int, n_parts: int) -> Lattice | Non
         numbered[patch, column] += 1 if side in (0, 3) else -1
     counts = _count(numbered)
     order = np.array(NUMBERING)
-    offsets = np.zeros(5, dtype=np.int64)
-    offsets[order] = np.concatenate([[0], np.cumsum(counts[order])[:-1]])
-    cell_counts = n_cells[:, 0] * n_cells[:, 1]
-    cell_offsets = np.zeros(5, dtype=np.int64)
-    cell_offsets[order] = np.concatenate([[0], np.cumsum(cell_counts[order])[:-1]])
+    band_counts = np.array([counts[list(members)].sum() for members in BANDS])
+    band_offsets = np.concatenate([[0], np.cumsum(band_counts)[:-1]]).astype(np.int64)
+    patch_offsets = _offsets(counts, NUMBERING)
+    cell_offsets = _offsets(n_cells[:, 0] * n_cells[:, 1], NUMBERING)
     n_nodes = int(counts.sum())
     if n_parts > n_nodes:
         return None
-    tiles = np.zeros(5, dtype=np.int64)
+    tiles = None
     if n_parts < PATCH_PARTS_FROM:
         node_ranges = _even(n_nodes, n_parts)
     else:
@@ -219,14 +258,18 @@ def lattice(h: float, cells: str, min_cells: int, n_parts: int) -> Lattice | Non
         if np.any(shares > counts[order]):
             return None
         ranges = [
-            offsets[p] + _even(int(counts[p]), int(k))[:-1]
+            patch_offsets[p] + _even(int(counts[p]), int(k))[:-1]
             for p, k in zip(order, shares, strict=True)
         ]
         node_ranges = np.concatenate([*ranges, [n_nodes]]).astype(np.int64)
+        tiles = np.zeros(5, dtype=np.int64)
         for p, k in zip(order, shares, strict=True):
             if k > 1:  # square tiles of about one part each
                 tiles[p] = max(1, round(math.sqrt(counts[p] / k)))
-    return Lattice(corners, n_cells, numbered, offsets, cell_offsets, tiles, node_ranges, cells)
+    return Lattice(
+        corners, n_cells, numbered, band_offsets, patch_offsets, cell_offsets, tiles,
+        node_ranges, cells,
+    )  # fmt: skip
 
 
 def patched(scene) -> bool:
@@ -316,6 +359,13 @@ def patch_part(grid: Lattice, rank: int) -> tuple[NodeCloud, Partition]:
 def _count(numbered: np.ndarray) -> np.ndarray:
     """Nodes of index rectangles (..., 4) = (i0, i1, j0, j1)."""
     return (numbered[..., 1] - numbered[..., 0]) * (numbered[..., 3] - numbered[..., 2])
+
+
+def _offsets(counts: np.ndarray, order) -> np.ndarray:
+    """(n_patches,) first number of each patch's nodes, patch after patch in ``order``."""
+    offsets = np.zeros(len(counts), dtype=np.int64)
+    offsets[list(order)] = np.concatenate([[0], np.cumsum(counts[list(order)])[:-1]])
+    return offsets
 
 
 def _even(count: int, n_parts: int) -> np.ndarray:

@@ -50,8 +50,8 @@ def parse_case(text: str) -> tuple[int, float, str]:
     return int(parts[0]), float(parts[1]), solver
 
 
-def run(ranks: int, degree: int, h: float, solver: str, out: Path) -> dict:
-    """summary.json of one run of the square on ``ranks`` ranks."""
+def run(ranks: int, degree: int, h: float, solver: str, out: Path, scene: str = "square") -> dict:
+    """summary.json of one run of ``scene`` (the square) on ``ranks`` ranks."""
     env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
     env["OMPI_MCA_rmaps_base_oversubscribe"] = "1"
     sets = [
@@ -61,7 +61,7 @@ def run(ranks: int, degree: int, h: float, solver: str, out: Path) -> dict:
         "time.dt=0.025",
         "output.every=0",  # the final step only: the phases are timed, not a time series
     ]
-    command = ["mpirun", "-n", str(ranks), PAREFG, "run", "square", "--quiet", "--out", str(out)]
+    command = ["mpirun", "-n", str(ranks), PAREFG, "run", scene, "--quiet", "--out", str(out)]
     command += [arg for s in sets for arg in ("--set", s)]
     command += ["--solver", solver, "--max-memory", str(MAX_MEMORY_GB)]
     subprocess.run(command, check=True, env=env, stdin=subprocess.DEVNULL)

@@ -1,6 +1,7 @@
 """Benchmark: peak memory per rank at a fixed number of DOFs per rank, p = 1, 2, 4, 8 (issue 13).
 
-Runs `parefg run square` (m = 1 by default, CG + GAMG, one dynamic contact step) under
+Runs `parefg run square` (or ``--scene z``; m = 1 by default, CG + GAMG, one dynamic contact
+step) under
 ``mpirun -n p`` (oversubscribed; scripts/bench/bench_scaling.py's run) with h chosen so
 that the DOFs per rank stay near ``--dofs-per-rank``, and reads summary.json: the peak
 RSS of the largest rank and the phase times.  Flat memory per rank means no rank holds
@@ -12,7 +13,7 @@ completeness, not to be read as scaling).
 Prints a markdown table and writes results/bench_weak_memory.csv.
 
     .venv/bin/python scripts/bench/bench_weak_memory.py [--ranks 1,2,4,8] \
-        [--dofs-per-rank 25000] [--degree 1] [--repeats 1]
+        [--dofs-per-rank 25000] [--degree 1] [--repeats 1] [--scene square|z]
 """
 
 import math
@@ -26,9 +27,16 @@ from bench_scaling import run  # the same one-step `parefg run square` under mpi
 PHASES = ("mesh", "mls", "assembly", "solve", "total")
 
 
-def spacing(dofs: int) -> int:
-    """1/h of the unit square whose (n + 1)^2 nodes carry about ``dofs`` DOFs."""
-    return max(2, round(math.sqrt(dofs / 2.0)) - 1)
+# the domains' areas: about area / h^2 nodes
+AREAS = {"square": 1.0, "z": 0.7}
+
+
+def spacing(dofs: int, scene: str = "square") -> int:
+    """1/h at which ``scene``'s domain has about ``dofs`` DOFs (the unit square: (n + 1)^2
+    nodes; the Z: about 0.7 n^2)."""
+    if scene == "square":
+        return max(2, round(math.sqrt(dofs / 2.0)) - 1)
+    return max(8, round(math.sqrt(dofs / (2.0 * AREAS[scene]))))
 
 
 def main() -> None:
@@ -36,17 +44,19 @@ def main() -> None:
     cli.add_argument("--ranks", default="1,2,4,8")
     cli.add_argument("--dofs-per-rank", type=int, default=25000)
     cli.add_argument("--degree", type=int, default=1)
+    cli.add_argument("--scene", choices=sorted(AREAS), default="square")
     args = cli.parse_args()
     rows = []
     for ranks in map(int, args.ranks.split(",")):
-        n = spacing(args.dofs_per_rank * ranks)
+        n = spacing(args.dofs_per_rank * ranks, args.scene)
         summaries = []
         for _ in range(args.repeats):
             with tempfile.TemporaryDirectory() as tmp:
-                summaries.append(run(ranks, args.degree, 1.0 / n, "iterative", Path(tmp) / "run"))
+                run_dir = Path(tmp) / "run"
+                summaries.append(run(ranks, args.degree, 1.0 / n, "iterative", run_dir, args.scene))
         dofs = summaries[0]["n_dofs"]
         rss = statistics.median(s["peak_rss_mb"] for s in summaries)
-        row = {"ranks": ranks, "m": args.degree, "h": f"1/{n}", "dofs": dofs}
+        row = {"scene": args.scene, "ranks": ranks, "m": args.degree, "h": f"1/{n}", "dofs": dofs}
         row.update(dofs_per_rank=dofs // ranks, peak_rss_mb_per_rank=rss)
         row.update(kb_per_owned_dof=1024 * rss / (dofs / ranks))
         for name in PHASES:

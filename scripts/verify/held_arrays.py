@@ -1,6 +1,7 @@
 """The largest arrays each rank holds after a run's first step (issue 13: none O(N)).
 
-Run under ``mpirun -n p``: builds the square scene (m = 1, CG + GAMG) with h chosen for
+Run under ``mpirun -n p``: builds the square scene (or ``--scene z``; m = 1, CG + GAMG) with h
+chosen for
 about ``--dofs-per-rank`` DOFs per rank, takes one step, then walks everything the
 Simulation references (attributes, lists, dicts, tuples, scipy matrices; PETSc objects
 are opaque and counted by PETSc's own distributed storage) and reports, per rank, the
@@ -9,7 +10,7 @@ At fixed N/p the largest array must stay flat as p grows; an array sized by the 
 cloud would grow with p.
 
     mpirun -n 4 --oversubscribe .venv/bin/python scripts/verify/held_arrays.py \
-        [--dofs-per-rank 25000] [--top 3]
+        [--dofs-per-rank 25000] [--top 3] [--scene square|z]
 """
 
 import argparse
@@ -61,14 +62,19 @@ def main() -> None:
     cli.add_argument("--dofs-per-rank", type=int, default=25000)
     cli.add_argument("--degree", type=int, default=1)
     cli.add_argument("--top", type=int, default=3)
+    cli.add_argument("--scene", choices=("square", "z"), default="square")
     args = cli.parse_args()
     from parefg.run import prepare  # after argparse: --help imports nothing heavy
 
     comm = MPI.COMM_WORLD
-    n = max(2, round(math.sqrt(args.dofs_per_rank * comm.size / 2.0)) - 1)
+    dofs = args.dofs_per_rank * comm.size
+    if args.scene == "square":  # (n + 1)^2 nodes
+        n = max(2, round(math.sqrt(dofs / 2.0)) - 1)
+    else:  # the Z: about 0.7 n^2 nodes
+        n = max(8, round(math.sqrt(dofs / 1.4)))
     sim = prepare(
         comm,
-        "square",
+        args.scene,
         [
             f"discretization.h={1.0 / n}",
             f"discretization.degree={args.degree}",
