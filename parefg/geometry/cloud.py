@@ -46,7 +46,10 @@ class NodeCloud:
         Boundary part names; ``"_free"`` collects segments of a user .geo that
         are on no listed part.
     original_index : (n_nodes,) int64
-        Index of each node in the cloud as gmsh built it.
+        Index of each node in the cloud as built: gmsh's order, or the numbering of a
+        domain made part by part (a rectangle's lattice, the Z's bands:
+        :mod:`~parefg.geometry.grid_parts`, :mod:`~parefg.geometry.patch_parts`); the
+        same for any rank count.
     segment_cells : BoundaryCells or None
         The cell each segment bounds, set where the cells are distributed (every rank
         keeps it for every segment); None while the cloud holds all its cells.

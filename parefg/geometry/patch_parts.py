@@ -43,6 +43,7 @@ from parefg.geometry.partition import Partition
 from parefg.geometry.shapes import (
     Z_BOUNDARY,
     Z_EDGE_NAMES,
+    Z_EDGE_OF_CURVE,
     Z_PATCH_POINTS,
     Z_PATCHES,
     transfinite_cells,
@@ -68,12 +69,10 @@ RISING_DIAGONAL = (False, False, False, False, True)
 # at the corner listed first below (0), or at the next (1).  The order matters: a
 # triangle's quadrature points depend on it.
 TRIANGLE_START = ((0, 0), (0, 0), (1, 0), (0, 0), (1, 1))
-# the outline edge (Z_EDGE_NAMES) each curve of Z_BOUNDARY lies on (as _build_z)
-EDGE_OF_CURVE = (0, 0, 1, 2, 3, 4, 5, 5, 6, 7, 8, 9)
 # From this many parts on, no part crosses a patch boundary: each patch gets whole parts
-# (:func:`_shares`), the largest part at most 6 % above the mean (measured, p = 40 to 1000;
-# 23 % at p = 20, hence not earlier); fewer parts are equal runs of the numbering:
-# horizontal bands, which grow thin as the parts grow many.
+# (:func:`_shares`), the largest part at most 9 % (and one node) above the mean (every p
+# from 40 to 1000 at 8e3 to 8e5 nodes; 23 % at p = 20, hence not earlier); fewer parts
+# are equal runs of the numbering: horizontal bands, which grow thin as parts grow many.
 PATCH_PARTS_FROM = 8 * len(Z_PATCHES)
 
 
@@ -255,9 +254,7 @@ def lattice(h: float, cells: str, min_cells: int, n_parts: int) -> Lattice | Non
     if n_parts < PATCH_PARTS_FROM:
         node_ranges = _even(n_nodes, n_parts)
     else:
-        shares = _shares(counts[order], n_parts)
-        if np.any(shares > counts[order]):
-            return None
+        shares = _shares(counts[order], n_parts)  # each <= its count: n_parts <= n_nodes
         ranges = [
             patch_offsets[p] + _even(int(counts[p]), int(k))[:-1]
             for p, k in zip(order, shares, strict=True)
@@ -471,7 +468,7 @@ def _boundary(grid: Lattice) -> dict:
     names: list[str] = []
     blocks = []
     ends = zip(Z_BOUNDARY, Z_BOUNDARY[1:] + Z_BOUNDARY[:1], strict=True)
-    for (a, b), edge in zip(ends, EDGE_OF_CURVE, strict=True):
+    for (a, b), edge in zip(ends, Z_EDGE_OF_CURVE, strict=True):
         patch, side = next(
             (p, k)
             for p, c in enumerate(Z_PATCHES)

@@ -45,6 +45,8 @@ Z_PATCHES = (
 Z_ARRANGEMENTS = ("Left", "Left", "Right", "Left", "Left")
 # The outline through the splitting points: boundary curve i runs from point i to i + 1.
 Z_BOUNDARY = (0, 10, 1, 2, 3, 4, 5, 11, 6, 7, 8, 9)
+# the outline edge (Z_EDGE_NAMES) each boundary curve lies on (0 and 5 are split)
+Z_EDGE_OF_CURVE = (0, 0, 1, 2, 3, 4, 5, 5, 6, 7, 8, 9)
 
 #: (vertices (n, 2), edge names (n,)) of a domain's outline; edge i runs from vertex i to i + 1
 Outline = tuple[Sequence, Sequence[str]]
@@ -228,11 +230,9 @@ def _build_z(gmsh, domain: dict, h: float, cells: str, min_cells: int = 1) -> Gm
         gmsh.model.mesh.setTransfiniteCurve(tag, transfinite_cells(length, h, min_cells) + 1)
     for surface, arrangement in zip(surfaces, Z_ARRANGEMENTS, strict=True):
         _set_transfinite_surface(gmsh, surface, cells, arrangement)
-    # Boundary curve -> the name of the outline edge it lies on (the split edges: 0 and 5).
-    edge_of_curve = (0, 0, 1, 2, 3, 4, 5, 5, 6, 7, 8, 9)
     part_curves: dict[str, list[int]] = {}
     ends = zip(Z_BOUNDARY, Z_BOUNDARY[1:] + Z_BOUNDARY[:1], strict=True)
-    for (start, end), edge in zip(ends, edge_of_curve, strict=True):
+    for (start, end), edge in zip(ends, Z_EDGE_OF_CURVE, strict=True):
         part_curves.setdefault(Z_EDGE_NAMES[edge], []).append(abs(line(start, end)))
     return GmshDomain(surfaces, part_curves, structured=True)
 
