@@ -515,7 +515,33 @@ def _spacing(grid: Lattice, patch, i, j) -> np.ndarray:
     """(n,) c_I = mean length of the mesh edges at the nodes (patch, i, j), given as
     their numbering patch's (:func:`~parefg.geometry.cloud.node_spacing`): the lattice
     edges of every patch the node is in, each edge once, with the diagonals of the
-    triangles."""
+    triangles.  A node inside its patch has its edges there (the few on the patches'
+    sides go through :func:`_shared_spacing`, whose arrays are ~20 times larger)."""
+    n, m = grid.n_cells[patch].T
+    inside = (i > 0) & (i < n) & (j > 0) & (j < m)
+    spacing = np.empty(len(patch))
+    spacing[~inside] = _shared_spacing(grid, patch[~inside], i[~inside], j[~inside])
+    p, a, b = patch[inside], i[inside], j[inside]
+    here = grid.coords(p, a, b)
+    total = np.zeros(len(p))
+    rising = np.array(RISING_DIAGONAL)[p]
+    for di, dj in _EDGE_OFFSETS[: 4 if grid.cells == CellType.QUAD else 6]:
+        # this patch's diagonal: (1, -1) and (-1, 1) fall, (1, 1) and (-1, -1) rise
+        up = np.where(rising, -dj, dj) if di != 0 and dj != 0 else dj
+        total += np.linalg.norm(grid.coords(p, a + di, b + up) - here, axis=1)
+    spacing[inside] = total / (4 if grid.cells == CellType.QUAD else 6)
+    return spacing
+
+
+# the lattice edges at a node: along the axes, then the falling diagonal's two
+_EDGE_OFFSETS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, -1), (-1, 1))
+
+
+def _shared_spacing(grid: Lattice, patch, i, j) -> np.ndarray:
+    """:func:`_spacing` of nodes on the patches' sides: their edges in every patch that
+    has them (:func:`_aliases`), each edge once."""
+    if len(patch) == 0:
+        return np.zeros(0)
     node, p, a, b = _aliases(grid, patch, i, j)
     offsets = [(1, 0), (-1, 0), (0, 1), (0, -1)]
     if grid.cells != CellType.QUAD:
