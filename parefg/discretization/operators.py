@@ -2,8 +2,9 @@
 
 scene -> node cloud -> partition -> MLS at this rank's quadrature points -> PETSc
 operators.  The cloud is meshed on rank 0 and partitioned there, each rank receiving its
-part (:mod:`parefg.geometry.distribute`), except a rectangle's grid, which each rank
-makes its own part of (:mod:`parefg.geometry.grid_parts`).  Everything here is constant
+part (:mod:`parefg.geometry.distribute`), except a rectangle's grid and the Z's patches,
+which each rank makes its own part of (:mod:`parefg.geometry.grid_parts`,
+:mod:`parefg.geometry.patch_parts`).  Everything here is constant
 over the run (small deformation): mass M, stiffness K, the Dirichlet operator D (penalty
 or Nitsche: built in :mod:`.boundary_operators`), and the point operators
 (:mod:`.point_set`) that evaluate u_h (and its gradient) at quadrature points, Gamma_C

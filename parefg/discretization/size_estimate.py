@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 from parefg.geometry.cells import UNSTRUCTURED_DENSITY, CellType
 from parefg.geometry.grid_parts import scene_grid
+from parefg.geometry.patch_parts import patched
 
 # Unstructured gmsh meshes at target size h: N = UNSTRUCTURED_DENSITY A / h^2 + 0.5 P / h.
 # Local geometry in units of the node spacing c_I: (nodes per c^2, cell area / c^2), the
@@ -49,7 +50,8 @@ PADDING = {"grid": 1.15, "unstructured": 1.4, "patches quad": 1.8, "patches tri"
 # fit), and what it loads only when needed, each measured as the peak's difference
 # (square, m = 2, h = 1/32, 2026-12-07) times the same 1.2: numba's JIT and LLVM where the
 # kernels are not compiled ahead of time (+90 MB), gmsh and its mesh where rank 0 meshes
-# (+40 MB; a rectangle's grid is made part by part without it, geometry.grid_parts).
+# (+40 MB; a rectangle's grid and the Z are made part by part without it, geometry.grid_parts
+# and patch_parts).
 BASE_BYTES = 350e6
 JIT_BYTES = 110e6
 GMSH_BYTES = 50e6
@@ -190,7 +192,7 @@ def _size(scene, n_nodes, n_cells, n_segments, kappa: float, alpha: float) -> Si
         neighbours=min(n_nodes, _padding(scene) * mean + 1),
         cell_nodes=min(n_nodes, cell + 1),
         reach=min(n_nodes, 4 * mean + 1),
-        meshed_on_root=scene_grid(scene) is None,
+        meshed_on_root=scene_grid(scene) is None and not patched(scene),
     )
 
 

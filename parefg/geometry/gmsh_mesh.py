@@ -8,8 +8,9 @@ counter-clockwise) and the boundary segments tagged with the boundary part they 
 to; optionally its interior nodes are jittered (:mod:`parefg.geometry.jitter`).
 :func:`mesh_on_root` keeps the cloud on rank 0 (the run partitions it there);
 :func:`build_node_cloud` broadcasts it, so every rank holds the same arrays.  A run on a
-rectangle does not mesh here: each rank makes its own part of the transfinite grid
-gmsh would make (:mod:`parefg.geometry.grid_parts`).
+rectangle or the Z does not mesh here: each rank makes its own part of the transfinite
+grid or patches gmsh would make (:mod:`parefg.geometry.grid_parts`,
+:mod:`parefg.geometry.patch_parts`).
 
 gmsh runs in a sealed session: stdin reads /dev/null, HOME is a private temporary
 directory and no user configuration is read.
