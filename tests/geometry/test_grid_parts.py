@@ -9,12 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from parts_runs import assert_answers_as_on_root
 
-from parefg.discretization import operators
 from parefg.geometry import grid_parts
 from parefg.geometry.cloud import boundary_cells
 from parefg.geometry.gmsh_mesh import mesh_domain
-from parefg.run import run_scene
 from parefg.scene.loader import load_scene
 
 RECTANGLE = {"shape": "rectangle", "origin": [0.3, -1.1], "size": [2.0, 0.7]}
@@ -187,12 +186,4 @@ def run_dir(comm, tmp_path):
 )
 def test_a_run_on_the_parts_answers_as_one_meshed_on_rank_0(comm, run_dir, monkeypatch, overrides):
     scene = load_scene("square", ["discretization.h=0.125", "time.T=0.5", *overrides])
-    by_parts = run_scene(comm, scene, out=str(run_dir / "parts"), quiet=True)
-    # the same scene, meshed by gmsh on rank 0 and partitioned by coordinate bisection
-    monkeypatch.setattr(operators, "mesh_by_parts", lambda comm, scene: None)
-    on_root = run_scene(comm, scene, out=str(run_dir / "root"), quiet=True)
-    assert by_parts["n_nodes"] == on_root["n_nodes"]
-    assert by_parts["newton_iterations"] == on_root["newton_iterations"]
-    for norm in ("l2_rel", "h1_rel"):
-        assert 0 < on_root["errors"][norm] < 0.05
-        assert by_parts["errors"][norm] == pytest.approx(on_root["errors"][norm], rel=1e-8, abs=0)
+    assert_answers_as_on_root(comm, scene, run_dir, monkeypatch, "mesh_by_parts", 0.05)

@@ -6,13 +6,12 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from parts_runs import assert_answers_as_on_root
 from scipy.spatial import cKDTree
 
-from parefg.discretization import operators
 from parefg.geometry import patch_parts
 from parefg.geometry.cloud import boundary_cells
 from parefg.geometry.gmsh_mesh import mesh_domain
-from parefg.run import run_scene
 from parefg.scene.loader import load_scene
 
 # (h, cells, m): 3 node rows across the strips at m = 1, 4 at m = 3; 948 nodes at 1/32
@@ -168,12 +167,4 @@ def test_a_run_on_the_patches_answers_as_one_meshed_on_rank_0(
     comm, run_dir, monkeypatch, overrides
 ):
     scene = load_scene("z", ["discretization.h=0.125", "time.T=0.5", "time.dt=0.1", *overrides])
-    by_patches = run_scene(comm, scene, out=str(run_dir / "patches"), quiet=True)
-    # the same scene, meshed by gmsh on rank 0 and partitioned by coordinate bisection
-    monkeypatch.setattr(operators, "mesh_by_patches", lambda comm, scene: None)
-    on_root = run_scene(comm, scene, out=str(run_dir / "root"), quiet=True)
-    assert by_patches["n_nodes"] == on_root["n_nodes"]
-    assert by_patches["newton_iterations"] == on_root["newton_iterations"]
-    for norm in ("l2_rel", "h1_rel"):
-        assert 0 < on_root["errors"][norm] < 0.1
-        assert by_patches["errors"][norm] == pytest.approx(on_root["errors"][norm], rel=1e-8, abs=0)
+    assert_answers_as_on_root(comm, scene, run_dir, monkeypatch, "mesh_by_patches", 0.1)
