@@ -132,13 +132,26 @@ def test_parts_together_are_the_whole_z(h, cells, m, n_parts):
     # every node owned once, every cell made once
     np.testing.assert_array_equal(np.sort(np.concatenate(owned)), np.arange(one.n_nodes))
     assert sorted(held_cells) == sorted(every)
-    # below PATCH_PARTS_FROM runs of one numbering, equal to one node; from there on
-    # whole parts per patch (a coarse Z: parts of a few nodes, rounding weighs more)
-    sizes = np.diff(grid.node_ranges)
+    # the work of each part (a node weighs its patch's nodes per area): below
+    # PATCH_PARTS_FROM runs of the numbering equal to about a node's weight (or equal runs
+    # where rounding would empty one); from there on whole parts per patch, by node count
+    # (a coarse Z: parts of a few nodes, rounding weighs more)
+    sizes, work = np.diff(grid.node_ranges), _work(grid)
     if n_parts < patch_parts.PATCH_PARTS_FROM:
-        assert sizes.max() - sizes.min() <= 1
+        weights = patch_parts.patch_weights(grid.corners, grid.n_cells)
+        assert work.max() - work.min() <= 2 * weights.max() or sizes.max() - sizes.min() <= 1
     else:
         assert sizes.max() <= 1.5 * sizes.mean()
+
+
+def _work(grid) -> np.ndarray:
+    """(n_parts,) the summed weights of each part's nodes."""
+    weights = patch_parts.patch_weights(grid.corners, grid.n_cells)
+    work = []
+    for start, stop in zip(grid.node_ranges[:-1], grid.node_ranges[1:], strict=True):
+        patch, _, _ = grid.nodes_numbered(int(start), int(stop))
+        work.append(weights[patch].sum())
+    return np.array(work)
 
 
 def test_only_unjittered_z_is_made_by_patches():
