@@ -70,6 +70,9 @@ RISING_DIAGONAL = (False, False, False, False, True)
 # at the corner listed first below (0), or at the next (1).  The order matters: a
 # triangle's quadrature points depend on it.
 TRIANGLE_START = ((0, 0), (0, 0), (1, 0), (0, 0), (1, 1))
+# The lattice edges at a node, (di, dj): along the axes, then the falling diagonal's two,
+# then the rising one's (a patch's triangles have one of the diagonals, RISING_DIAGONAL).
+EDGE_OFFSETS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, -1), (-1, 1), (1, 1), (-1, -1))
 # From this many parts on, no part crosses a patch boundary: each patch gets whole parts
 # (:func:`_shares`), the largest part at most 9 % (and one node) above the mean (every p
 # from 40 to 1000 at 8e3 to 8e5 nodes; 23 % at p = 20, hence not earlier); fewer parts
@@ -252,8 +255,8 @@ def lattice(h: float, cells: str, min_cells: int, n_parts: int) -> Lattice | Non
     if n_parts > n_nodes:
         return None
     tiles = None
-    weights = patch_weights(corners, n_cells)
     if n_parts < PATCH_PARTS_FROM:
+        weights = patch_weights(corners, n_cells)
         band_weights = np.array(
             [np.dot(counts[list(m)], weights[list(m)]) / counts[list(m)].sum() for m in BANDS]
         )
@@ -555,16 +558,12 @@ def _spacing(grid: Lattice, patch, i, j) -> np.ndarray:
     here = grid.coords(p, a, b)
     total = np.zeros(len(p))
     rising = np.array(RISING_DIAGONAL)[p]
-    for di, dj in _EDGE_OFFSETS[: 4 if grid.cells == CellType.QUAD else 6]:
+    for di, dj in EDGE_OFFSETS[: 4 if grid.cells == CellType.QUAD else 6]:
         # this patch's diagonal: (1, -1) and (-1, 1) fall, (1, 1) and (-1, -1) rise
         up = np.where(rising, -dj, dj) if di != 0 and dj != 0 else dj
         total += np.linalg.norm(grid.coords(p, a + di, b + up) - here, axis=1)
     spacing[inside] = total / (4 if grid.cells == CellType.QUAD else 6)
     return spacing
-
-
-# the lattice edges at a node: along the axes, then the falling diagonal's two
-_EDGE_OFFSETS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, -1), (-1, 1))
 
 
 def _shared_spacing(grid: Lattice, patch, i, j) -> np.ndarray:
@@ -573,9 +572,7 @@ def _shared_spacing(grid: Lattice, patch, i, j) -> np.ndarray:
     if len(patch) == 0:
         return np.zeros(0)
     node, p, a, b = _aliases(grid, patch, i, j)
-    offsets = [(1, 0), (-1, 0), (0, 1), (0, -1)]
-    if grid.cells != CellType.QUAD:
-        offsets += [(1, -1), (-1, 1), (1, 1), (-1, -1)]  # falling, then rising diagonals
+    offsets = EDGE_OFFSETS[: 4 if grid.cells == CellType.QUAD else 8]
     n, m = grid.n_cells[p].T
     rising = np.array(RISING_DIAGONAL)[p]
     edge_nodes, others = [], []
